@@ -1,0 +1,134 @@
+// Engine benchmarks (they print numbers; nothing asserts a speed):
+//   BM_Step/N        one code step of N sessions through StepBatch (sequence model + sampling + VQ decode +
+//                    pose reconstruction); the "us_per_session" counter is the cost per session.
+//   BM_ModelOnly/N   the sequence model's batched step alone.
+//   BM_Generate      a whole stream (audio front end included) over 30 s of test audio: x real time.
+// The model is models/default.dncw when it exists (or $DANCE_BENCH_MODEL), otherwise a random model with
+// the default training sizes built in memory. Memory per session is printed once at start.
+//
+//   build/bench/engine_bench --benchmark_filter=BM_Step
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+
+#include "benchmark/benchmark.h"
+#include "engine/runtime/session.h"
+#include "tests/engine/runtime/testing/tiny_model.h"
+
+namespace dance::engine {
+namespace {
+
+std::shared_ptr<const Model> BenchModel() {
+  static std::shared_ptr<const Model> model = [] {
+    const char* env = std::getenv("DANCE_BENCH_MODEL");
+    const std::string path = env != nullptr ? env : "models/default.dncw";
+    if (std::filesystem::exists(path)) {
+      absl::StatusOr<std::shared_ptr<const Model>> m = LoadModel(path);
+      if (m.ok()) {
+        std::fprintf(stderr, "model: %s (%s)\n", path.c_str(), (*m)->model_id().c_str());
+        return *m;
+      }
+      std::fprintf(stderr, "cannot load %s: %s\n", path.c_str(), std::string(m.status().message()).c_str());
+    }
+    std::fprintf(stderr, "model: random weights at the default training sizes\n");
+    return testing::LoadTinyModel(testing::DefaultSizeOptions());
+  }();
+  return model;
+}
+
+// Sessions with enough audio queued for `steps` steps.
+std::vector<std::unique_ptr<Session>> MakeSessions(int n, double seconds) {
+  const std::vector<float> audio = testing::TestAudio(seconds);
+  std::vector<std::unique_ptr<Session>> out;
+  for (int i = 0; i < n; ++i) {
+    SessionOptions opt;
+    opt.seed = static_cast<uint64_t>(i);
+    out.push_back(*Session::Create(BenchModel(), opt));
+    (void)out.back()->PushAudio(audio);
+  }
+  return out;
+}
+
+void BM_Step(benchmark::State& state) {
+  const int n = static_cast<int>(state.range(0));
+  std::vector<std::unique_ptr<Session>> sessions = MakeSessions(n, 70.0);
+  std::vector<Session*> ptrs;
+  for (auto& s : sessions) ptrs.push_back(s.get());
+  std::vector<PoseFrame> sink;
+  for (auto _ : state) {
+    if (ptrs[0]->StepsReady() == 0) {
+      state.PauseTiming();
+      for (Session* s : ptrs) s->Reset();
+      for (Session* s : ptrs) (void)s->PushAudio(testing::TestAudio(70.0));
+      state.ResumeTiming();
+    }
+    (void)StepBatch(ptrs);
+    for (Session* s : ptrs) {
+      sink.clear();
+      s->PopFrames(&sink);
+    }
+  }
+  state.counters["us_per_session"] = benchmark::Counter(
+      static_cast<double>(state.iterations()) * n, benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+}
+BENCHMARK(BM_Step)->Arg(1)->Arg(64)->Arg(256)->Unit(benchmark::kMicrosecond);
+
+void BM_ModelOnly(benchmark::State& state) {
+  const int n = static_cast<int>(state.range(0));
+  const SequenceModel& seq = BenchModel()->sequence();
+  std::vector<SequenceState> states(n, seq.NewState());
+  std::vector<float> music(seq.config().music_dim(), 0.1f), pre(seq.config().pre_dim, 0.5f);
+  std::vector<LaneInput> lanes(n);
+  for (int i = 0; i < n; ++i) {
+    lanes[i] = {music.data(), pre.data(), i % seq.config().codebook_size, 3, &states[i]};
+  }
+  Workspace ws;
+  for (auto _ : state) {
+    seq.Step(lanes, ws);
+    benchmark::DoNotOptimize(ws.logits_u.data());
+  }
+  state.counters["us_per_session"] = benchmark::Counter(
+      static_cast<double>(state.iterations()) * n, benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+}
+BENCHMARK(BM_ModelOnly)->Arg(1)->Arg(64)->Arg(256)->Unit(benchmark::kMicrosecond);
+
+void BM_Generate(benchmark::State& state) {
+  const double seconds = 30.0;
+  const std::vector<float> audio = testing::TestAudio(seconds);
+  for (auto _ : state) {
+    SessionOptions opt;
+    std::unique_ptr<Session> s = *Session::Create(BenchModel(), opt);
+    for (size_t pos = 0; pos < audio.size(); pos += 4096) {
+      (void)s->PushAudio(absl::MakeConstSpan(audio.data() + pos, std::min<size_t>(4096, audio.size() - pos)));
+      while (s->StepsReady() > 0) (void)s->Step();
+    }
+    s->EndOfAudio();
+    while (s->StepsReady() > 0) (void)s->Step();
+    std::vector<PoseFrame> frames;
+    s->PopFrames(&frames);
+    benchmark::DoNotOptimize(frames.data());
+  }
+  state.counters["x_real_time"] = benchmark::Counter(seconds * static_cast<double>(state.iterations()),
+                                                     benchmark::Counter::kIsRate);
+}
+BENCHMARK(BM_Generate)->Unit(benchmark::kMillisecond)->MinTime(2.0);
+
+void PrintMemory() {
+  std::vector<std::unique_ptr<Session>> s = MakeSessions(1, 1.0);
+  SessionOptions guided;
+  guided.sampling.guidance = 2.0f;
+  std::unique_ptr<Session> g = *Session::Create(BenchModel(), guided);
+  std::fprintf(stderr, "memory per session: %.1f KB (%.1f KB with guidance)\n", s[0]->StateBytes() / 1024.0,
+               g->StateBytes() / 1024.0);
+}
+
+}  // namespace
+}  // namespace dance::engine
+
+int main(int argc, char** argv) {
+  benchmark::Initialize(&argc, argv);
+  dance::engine::PrintMemory();
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}

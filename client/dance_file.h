@@ -1,0 +1,40 @@
+// Saving a received dance: "dance-motion/v1" JSON (the project's exchange format) and BVH (for Blender and
+// game engines).
+//
+// dance-motion/v1: {"format": "dance-motion/v1", "fps": 30, "units": "m", "up_axis": "y",
+//   "joint_names": [24], "parents": [24], "rest_offsets": [24][3], "positions": [T][24][3],
+//   "rotations": [T][24][4] (w, x, y, z, local), "audio_offset_s": time of the first frame,
+//   "codes": {"upper": [T], "lower": [T]}, "model_id", "seed", "session_id"}.
+// BVH: the skeleton from rest offsets (centimetres), root channels Xposition Yposition Zposition Zrotation
+//   Xrotation Yrotation, other joints Zrotation Xrotation Yrotation (degrees, R = Rz Rx Ry), one MOTION row
+//   per frame; G_j = G_parent L_j as in docs/rotations.md, so forward kinematics reproduces the positions.
+//
+// Thread safety: pure functions.
+#ifndef DANCE_CLIENT_DANCE_FILE_H_
+#define DANCE_CLIENT_DANCE_FILE_H_
+
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "dance/v1/dance.pb.h"
+#include "nlohmann/json.hpp"
+
+namespace dance::client {
+
+nlohmann::json DanceToJson(const dance::v1::SessionInfo& info, const std::vector<dance::v1::PoseFrame>& frames,
+                           uint64_t seed);
+absl::Status WriteDanceJson(const std::string& path, const dance::v1::SessionInfo& info,
+                            const std::vector<dance::v1::PoseFrame>& frames, uint64_t seed);
+std::string DanceToBvh(const dance::v1::SessionInfo& info, const std::vector<dance::v1::PoseFrame>& frames);
+absl::Status WriteBvh(const std::string& path, const dance::v1::SessionInfo& info,
+                      const std::vector<dance::v1::PoseFrame>& frames);
+
+// Euler angles (degrees) for BVH channel order Z, X, Y of the unit quaternion (w, x, y, z): R = Rz Rx Ry.
+std::array<double, 3> QuaternionToEulerZXY(double w, double x, double y, double z);
+
+}  // namespace dance::client
+
+#endif  // DANCE_CLIENT_DANCE_FILE_H_

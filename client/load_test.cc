@@ -1,0 +1,130 @@
+#include "client/load_test.h"
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "absl/strings/str_format.h"
+#include "absl/time/clock.h"
+#include "client/perform_stream.h"
+#include "nlohmann/json.hpp"
+
+namespace dance::client {
+namespace {
+
+double Percentile(std::vector<float>& v, double q) {
+  if (v.empty()) return 0.0;
+  const size_t k = std::min(v.size() - 1, static_cast<size_t>(std::ceil(q * static_cast<double>(v.size()))) - 1);
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
+  return v[k];
+}
+
+}  // namespace
+
+absl::StatusOr<LoadReport> RunLoad(const LoadOptions& o, std::shared_ptr<const AudioClip> clip,
+                                   std::ostream& progress) {
+  if (o.streams < 1) return absl::InvalidArgumentError("--streams must be >= 1");
+  auto creds = o.credentials ? o.credentials : grpc::InsecureChannelCredentials();
+  const int n_channels = (o.streams + o.streams_per_channel - 1) / o.streams_per_channel;
+  std::vector<std::unique_ptr<dance::v1::DanceService::Stub>> stubs;
+  for (int c = 0; c < n_channels; ++c) {
+    grpc::ChannelArguments args;
+    args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+    args.SetInt("dance.load_channel", c);  // a distinct connection per channel
+    args.SetMaxReceiveMessageSize(16 << 20);
+    stubs.push_back(dance::v1::DanceService::NewStub(grpc::CreateCustomChannel(o.target, creds, args)));
+  }
+  std::vector<std::unique_ptr<PerformStream>> streams;
+  for (int i = 0; i < o.streams; ++i) {
+    PerformOptions po;
+    po.chunk_ms = o.chunk_ms;
+    po.keep_frames = false;
+    po.auth_token = o.auth_token;
+    po.header.set_seed(o.seed + static_cast<uint64_t>(i));
+    po.header.set_client_name(absl::StrFormat("load-%d", i));
+    po.header.set_omit_rotations(true);
+    streams.push_back(std::make_unique<PerformStream>(
+        stubs[static_cast<size_t>(i / o.streams_per_channel)].get(),
+        std::make_unique<ClipSource>(clip, o.realtime, o.duration_s), po));
+  }
+  const absl::Time t0 = absl::Now();
+  std::vector<absl::Time> start_at(streams.size());
+  std::vector<bool> started(streams.size(), false);
+  for (size_t i = 0; i < streams.size(); ++i) {
+    start_at[i] = t0 + absl::Seconds(o.stagger_s * static_cast<double>(i) / static_cast<double>(streams.size()));
+  }
+  absl::Time next_report = t0 + absl::Seconds(1);
+  int64_t last_frames = 0;
+  while (true) {
+    const absl::Time now = absl::Now();
+    int live = 0;
+    for (size_t i = 0; i < streams.size(); ++i) {
+      if (!started[i]) {
+        if (now < start_at[i]) {
+          ++live;
+          continue;
+        }
+        streams[i]->Start(now);
+        started[i] = true;
+      }
+      if (!streams[i]->done()) {
+        ++live;
+        streams[i]->Pump(now);
+      }
+    }
+    if (now >= next_report) {
+      int64_t frames = 0;
+      for (auto& s : streams) frames += s->frames_received();
+      progress << absl::StrFormat("[%5.1fs] streams live %d, frames/s %lld\n", absl::ToDoubleSeconds(now - t0),
+                                  live, static_cast<long long>(frames - last_frames));
+      last_frames = frames;
+      next_report += absl::Seconds(1);
+    }
+    if (live == 0) break;
+    absl::SleepFor(absl::Milliseconds(5));
+  }
+  const absl::Time t1 = absl::Now();
+  LoadReport r;
+  r.streams = o.streams;
+  r.duration_s = absl::ToDoubleSeconds(t1 - t0);
+  std::vector<float> lat;
+  for (auto& s : streams) {
+    absl::Status st = s->Wait();
+    const FrameStats& fs = s->stats();
+    r.frames += fs.frames;
+    r.dropped_frames += fs.gaps;
+    if (!st.ok()) {
+      ++r.errors;
+      if (r.first_error.empty()) r.first_error = st.ToString();
+    } else if (s->end().frames() > fs.frames) {
+      r.dropped_frames += s->end().frames() - fs.frames;
+    }
+    lat.insert(lat.end(), fs.latency_ms.begin(), fs.latency_ms.end());
+    r.max_skew_ms = std::max(r.max_skew_ms, fs.max_skew_ms);
+  }
+  r.frames_per_s = r.duration_s > 0 ? static_cast<double>(r.frames) / r.duration_s : 0.0;
+  r.p50_ms = Percentile(lat, 0.50);
+  r.p95_ms = Percentile(lat, 0.95);
+  r.p99_ms = Percentile(lat, 0.99);
+  r.max_ms = lat.empty() ? 0.0 : *std::max_element(lat.begin(), lat.end());
+  return r;
+}
+
+std::string LoadReportJson(const LoadReport& r) {
+  auto round3 = [](double v) { return std::round(v * 1000.0) / 1000.0; };
+  nlohmann::json j = {{"streams", r.streams},
+                      {"duration_s", round3(r.duration_s)},
+                      {"frames_per_s", round3(r.frames_per_s)},
+                      {"errors", r.errors},
+                      {"dropped_frames", r.dropped_frames},
+                      {"p50_ms", round3(r.p50_ms)},
+                      {"p95_ms", round3(r.p95_ms)},
+                      {"p99_ms", round3(r.p99_ms)},
+                      {"max_skew_ms", round3(r.max_skew_ms)},
+                      {"frames", r.frames},
+                      {"max_ms", round3(r.max_ms)}};
+  if (!r.first_error.empty()) j["first_error"] = r.first_error;
+  return j.dump();
+}
+
+}  // namespace dance::client

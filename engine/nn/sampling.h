@@ -1,0 +1,57 @@
+// Seeded sampling of a code from logits (docs/model.md section 6).
+//
+//   logits' = lu + w (lc - lu)      (guidance; the caller combines, see ApplyGuidance)
+//   T == 0  -> greedy: argmax, lowest index wins ties (no random draw is consumed)
+//   else    -> softmax(logits / T), keep the top_k most likely (0 = all), then the smallest prefix whose
+//              probability reaches top_p, renormalise, draw u = (gen() >> 11) * 2^-53 and walk the
+//              candidates sorted by descending probability (ties: lower index first) until the cumulative
+//              probability exceeds u.
+//
+// Usage:
+//   std::mt19937_64 gen(seed);
+//   SamplerScratch scratch(K);
+//   int code = SampleCode(logits, {.temperature = 0.8f, .top_k = 40}, gen, scratch);
+//
+// Thread safety: pure apart from the generator and scratch, which belong to the caller.
+#ifndef DANCE_ENGINE_NN_SAMPLING_H_
+#define DANCE_ENGINE_NN_SAMPLING_H_
+
+#include <cstdint>
+#include <random>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/types/span.h"
+
+namespace dance::engine {
+
+struct SamplingOptions {
+  float temperature = 1.0f;  // >= 0; 0 = greedy
+  int top_k = 0;             // >= 0; 0 = no top-k cut
+  float top_p = 1.0f;        // (0, 1]; 1 = no nucleus cut
+  float guidance = 1.0f;     // classifier-free guidance weight w (>= 0); 1 = conditional logits only
+};
+
+// OK, or InvalidArgument naming the bad field (negative temperature, top_p outside (0, 1], ...).
+absl::Status ValidateSamplingOptions(const SamplingOptions& options);
+
+// Preallocated buffers for SampleCode, for a vocabulary of `vocab` codes.
+struct SamplerScratch {
+  explicit SamplerScratch(int vocab = 0) : order(vocab), probs(vocab) {}
+  std::vector<int> order;
+  std::vector<double> probs;
+};
+
+// logits_c[i] = logits_u[i] + w * (logits_c[i] - logits_u[i]), in place.
+void ApplyGuidance(absl::Span<const float> logits_u, float w, absl::Span<float> logits_c);
+
+// One code in [0, logits.size()). `options` must be valid.
+int SampleCode(absl::Span<const float> logits, const SamplingOptions& options, std::mt19937_64& gen,
+               SamplerScratch& scratch);
+
+// The uniform draw in [0, 1) used by SampleCode: (gen() >> 11) * 2^-53.
+inline double UniformDraw(std::mt19937_64& gen) { return static_cast<double>(gen() >> 11) * 0x1.0p-53; }
+
+}  // namespace dance::engine
+
+#endif  // DANCE_ENGINE_NN_SAMPLING_H_

@@ -1,0 +1,69 @@
+#include "engine/runtime/model.h"
+
+#include "absl/status/status.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
+#include "engine/audio/feature_layout.h"
+#include "engine/nn/status_macros.h"
+
+namespace dance::engine {
+
+absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFile& weights) {
+  DANCE_ASSIGN_OR_RETURN(SequenceModel seq, SequenceModel::Load(weights));
+  DANCE_ASSIGN_OR_RETURN(VqDecoder upper, VqDecoder::Load(weights, "upper"));
+  DANCE_ASSIGN_OR_RETURN(VqDecoder lower, VqDecoder::Load(weights, "lower"));
+  const SeqConfig& c = seq.config();
+  if (c.feature_dim != audio::kNumFeatures || (c.use_pre && c.pre_dim != audio::kPreDims)) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "weights file: model expects ", c.feature_dim, " features and ", c.pre_dim, " PRE dims per frame; this ",
+        "engine's front end produces ", audio::kNumFeatures, " and ", audio::kPreDims));
+  }
+  if (upper.codebook_size() != c.codebook_size || lower.codebook_size() != c.codebook_size) {
+    return absl::InvalidArgumentError("weights file: VQ codebook sizes differ from the sequence model's K");
+  }
+  if (upper.out_dim() != 45 || lower.out_dim() != 31 || upper.frames_per_code() != c.frames_per_step ||
+      lower.frames_per_code() != c.frames_per_step) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "weights file: VQ decoders give ", upper.out_dim(), "/", lower.out_dim(), " dims x ",
+        upper.frames_per_code(), " frames per code; expected 45/31 x ", c.frames_per_step));
+  }
+  std::shared_ptr<Model> m(new Model(std::move(seq), std::move(upper), std::move(lower)));
+  m->metadata_ = weights.metadata();
+  DANCE_ASSIGN_OR_RETURN(m->skeleton_, Skeleton::FromMetadata(m->metadata_));
+  m->model_id_ = m->metadata_.value("model_id", std::string("unknown"));
+  if (m->metadata_.contains("styles") && m->metadata_["styles"].is_array()) {
+    for (const auto& s : m->metadata_["styles"]) {
+      if (!s.is_string()) return absl::InvalidArgumentError("weights metadata: a style name is not a string");
+      m->styles_.push_back(s.get<std::string>());
+    }
+  }
+  if (static_cast<int>(m->styles_.size()) != c.n_styles) {
+    return absl::InvalidArgumentError(absl::StrCat("weights metadata: ", m->styles_.size(),
+                                                   " style names but n_styles = ", c.n_styles));
+  }
+  return std::shared_ptr<const Model>(std::move(m));
+}
+
+absl::StatusOr<int> Model::StyleIndex(const std::string& name) const {
+  if (name == "none" || name.empty()) return config().n_styles;
+  for (size_t i = 0; i < styles_.size(); ++i) {
+    if (styles_[i] == name) return static_cast<int>(i);
+  }
+  return absl::NotFoundError(
+      absl::StrCat("unknown style '", name, "'; this model knows: ", absl::StrJoin(styles_, ", "), ", none"));
+}
+
+double Model::LatencyMs() const {
+  return config().music_lookahead_steps * 1000.0 * config().frames_per_step / audio::kFrameRate;
+}
+
+absl::StatusOr<std::shared_ptr<const Model>> LoadModel(const std::string& path) {
+  DANCE_ASSIGN_OR_RETURN(WeightsFile weights, WeightsFile::Load(path));
+  absl::StatusOr<std::shared_ptr<const Model>> model = Model::FromWeights(weights);
+  if (!model.ok()) {
+    return absl::Status(model.status().code(), absl::StrCat(model.status().message(), " (", path, ")"));
+  }
+  return model;
+}
+
+}  // namespace dance::engine

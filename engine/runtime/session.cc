@@ -1,0 +1,375 @@
+#include "engine/runtime/session.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "absl/strings/str_cat.h"
+#include "engine/nn/status_macros.h"
+
+namespace dance::engine {
+namespace {
+
+constexpr int kFeatureDims = audio::kNumFeatures;
+constexpr int kPreDims = audio::kPreDims;
+
+}  // namespace
+
+Session::Session(std::shared_ptr<const Model> model, const SessionOptions& options)
+    : model_(std::move(model)),
+      options_(options),
+      sampling_(options.sampling),
+      generator_(options.seed),
+      reconstructor_(model_->skeleton()),
+      sampler_(model_->config().codebook_size) {}
+
+Session::~Session() = default;
+
+absl::StatusOr<std::unique_ptr<Session>> Session::Create(std::shared_ptr<const Model> model,
+                                                         const SessionOptions& options) {
+  if (model == nullptr) return absl::InvalidArgumentError("session: no model");
+  DANCE_RETURN_IF_ERROR(ValidateSamplingOptions(options.sampling));
+  audio::AudioFrontEndOptions fe_options;
+  fe_options.sample_rate = options.input_sample_rate;
+  fe_options.channels = options.input_channels;
+  DANCE_ASSIGN_OR_RETURN(std::unique_ptr<audio::AudioFrontEnd> front_end, audio::AudioFrontEnd::Create(fe_options));
+  std::unique_ptr<Session> s(new Session(std::move(model), options));
+  s->front_end_ = std::move(front_end);
+  const SequenceModel& seq = s->model_->sequence();
+  const int k = seq.config().codebook_size;
+  s->cond_ = seq.NewState();
+  s->uncond_ = seq.NewState();
+  s->upper_code_ = s->lower_code_ = k;  // BOS
+  s->upper_state_ = s->model_->upper_decoder().NewState();
+  s->lower_state_ = s->model_->lower_decoder().NewState();
+  s->guided_u_.resize(k);
+  s->guided_l_.resize(k);
+  DANCE_RETURN_IF_ERROR(s->ApplyStyle(options.style));
+  return s;
+}
+
+absl::Status Session::ApplyStyle(const std::vector<std::pair<std::string, float>>& style) {
+  std::vector<std::pair<int, float>> rows;
+  double total = 0.0;
+  for (const auto& [name, weight] : style) {
+    if (!(weight >= 0.0f) || !std::isfinite(weight)) {
+      return absl::InvalidArgumentError(absl::StrCat("style '", name, "': weight must be finite and >= 0, got ",
+                                                     weight));
+    }
+    DANCE_ASSIGN_OR_RETURN(int row, model_->StyleIndex(name));
+    rows.emplace_back(row, weight);
+    total += weight;
+  }
+  if (rows.empty()) {
+    rows.emplace_back(model_->config().n_styles, 1.0f);
+    total = 1.0;
+  }
+  if (!(total > 0.0)) return absl::InvalidArgumentError("style weights sum to 0");
+  for (auto& r : rows) r.second = static_cast<float>(r.second / total);
+  model_->sequence().SetStyle(model_->sequence().StyleVector(rows), &cond_);
+  style_ = style;
+  return absl::OkStatus();
+}
+
+absl::Status Session::SetStyle(const std::vector<std::pair<std::string, float>>& style) { return ApplyStyle(style); }
+
+absl::Status Session::SetSampling(const SamplingOptions& sampling) {
+  DANCE_RETURN_IF_ERROR(ValidateSamplingOptions(sampling));
+  if (sampling.guidance != 1.0f && sampling_.guidance == 1.0f) {
+    // Guidance switched on mid-stream: the unconditional lane has not followed; start it from the
+    // conditional lane's history (the closest state it can have) with style "none".
+    Eigen::MatrixXf none_bias = uncond_.style_bias;
+    uncond_ = cond_;
+    uncond_.style_bias = none_bias;
+  }
+  sampling_ = sampling;
+  return absl::OkStatus();
+}
+
+absl::Status Session::PushAudio(absl::Span<const float> interleaved) {
+  if (ended_) return absl::FailedPreconditionError("session: audio pushed after EndOfAudio");
+  DANCE_RETURN_IF_ERROR(front_end_->PushFloat(interleaved));
+  CollectFrames();
+  return absl::OkStatus();
+}
+
+absl::Status Session::PushAudioInt16(absl::Span<const int16_t> interleaved) {
+  if (ended_) return absl::FailedPreconditionError("session: audio pushed after EndOfAudio");
+  DANCE_RETURN_IF_ERROR(front_end_->PushInt16(interleaved));
+  CollectFrames();
+  return absl::OkStatus();
+}
+
+void Session::EndOfAudio() {
+  if (ended_) return;
+  // The dance covers every period the audio reaches into: count the 24 kHz samples received, round up to
+  // whole periods, and feed silence so the front end completes them (the extra frames are not used).
+  const int rate = options_.input_sample_rate;
+  const int64_t in_frames = front_end_->input_frames();
+  const int64_t samples24 = (in_frames * audio::kSampleRate + rate - 1) / rate;
+  const int64_t period = static_cast<int64_t>(audio::kHopSamples) * model_->config().frames_per_step;
+  const int64_t periods = (samples24 + period - 1) / period;
+  frames_limit_ = periods * model_->config().frames_per_step;
+  const int64_t missing24 = std::max<int64_t>(0, frames_limit_ * audio::kHopSamples - samples24);
+  const int64_t pad = (missing24 + audio::kHopSamples) * rate / audio::kSampleRate + rate / 10 +
+                      front_end_->BufferingSamples();
+  std::vector<float> silence(static_cast<size_t>(pad) * options_.input_channels, 0.0f);
+  front_end_->PushFloat(silence).IgnoreError();  // length is a multiple of the channel count
+  front_end_->Flush().IgnoreError();
+  CollectFrames();
+  ended_ = true;
+}
+
+void Session::CollectFrames() {
+  front_end_->PopFrames(&popped_);
+  const int64_t n = popped_.frames();
+  if (n == 0) return;
+  pending_features_.insert(pending_features_.end(), popped_.features.begin(), popped_.features.end());
+  pending_pre_.insert(pending_pre_.end(), popped_.pre.begin(), popped_.pre.end());
+  frames_total_ += n;
+}
+
+int Session::StepsReady() const {
+  const int fps = model_->config().frames_per_step;
+  const int64_t usable = frames_limit_ >= 0 ? std::min(frames_total_, frames_limit_) : frames_total_;
+  const int64_t total_steps = usable / fps - model_->config().music_lookahead_steps;
+  return static_cast<int>(std::max<int64_t>(0, total_steps - cond_.step));
+}
+
+void Session::StepInputs(const float** music, const float** pre) {
+  const int fps = model_->config().frames_per_step;
+  const int64_t first = (cond_.step + model_->config().music_lookahead_steps) * fps - first_pending_frame_;
+  *music = pending_features_.data() + first * kFeatureDims;
+  *pre = pending_pre_.data() + (first + fps - 1) * kPreDims;
+}
+
+void Session::SampleCodes(const float* logits_u, const float* logits_l, const float* uncond_u,
+                          const float* uncond_l) {
+  const SeqConfig& c = model_->config();
+  const int k = c.codebook_size;
+  absl::Span<const float> lu(logits_u, k), ll(logits_l, k);
+  if (uncond_u != nullptr) {
+    std::copy(logits_u, logits_u + k, guided_u_.begin());
+    std::copy(logits_l, logits_l + k, guided_l_.begin());
+    ApplyGuidance(absl::MakeConstSpan(uncond_u, k), sampling_.guidance, absl::MakeSpan(guided_u_));
+    ApplyGuidance(absl::MakeConstSpan(uncond_l, k), sampling_.guidance, absl::MakeSpan(guided_l_));
+    lu = guided_u_;
+    ll = guided_l_;
+  }
+  upper_code_ = SampleCode(lu, sampling_, generator_, sampler_);
+  lower_code_ = SampleCode(ll, sampling_, generator_, sampler_);
+}
+
+void Session::EmitFrames(const Eigen::Ref<const Eigen::MatrixXf>& up, const Eigen::Ref<const Eigen::MatrixXf>& low) {
+  const SeqConfig& c = model_->config();
+  // cond_.step was advanced by the model: the step just taken is cond_.step - 1, emitting period cond_.step.
+  const int64_t first_frame = cond_.step * c.frames_per_step;
+  for (int f = 0; f < c.frames_per_step; ++f) {
+    PoseFrame& frame = output_.emplace_back();
+    frame.index = first_frame + f;
+    frame.time_s = static_cast<double>(frame.index) / audio::kFrameRate;
+    frame.upper_code = upper_code_;
+    frame.lower_code = lower_code_;
+    reconstructor_.Reconstruct(up.col(f).data(), low.col(f).data(), pose_, &frame.positions, &frame.rotations);
+  }
+  // Forget feature frames no step will read again (amortised: only when many have accumulated).
+  const int64_t needed_from = (cond_.step + c.music_lookahead_steps) * c.frames_per_step;
+  const int64_t drop = needed_from - first_pending_frame_;
+  if (drop >= 256) {
+    pending_features_.erase(pending_features_.begin(), pending_features_.begin() + drop * kFeatureDims);
+    pending_pre_.erase(pending_pre_.begin(), pending_pre_.begin() + drop * kPreDims);
+    first_pending_frame_ += drop;
+  }
+}
+
+absl::Status Session::Step() {
+  Session* self = this;
+  return StepBatch(absl::MakeConstSpan(&self, 1));
+}
+
+void Session::PopFrames(std::vector<PoseFrame>* out) {
+  out->insert(out->end(), output_.begin(), output_.end());
+  output_.clear();
+}
+
+absl::StatusOr<SessionSnapshot> Session::Snapshot() const {
+  SessionSnapshot s;
+  s.input_sample_rate = options_.input_sample_rate;
+  s.input_channels = options_.input_channels;
+  s.style = style_;
+  s.sampling = sampling_;
+  s.generator = generator_;
+  s.front_end = front_end_->Snapshot();
+  s.pending_features = pending_features_;
+  s.pending_pre = pending_pre_;
+  s.first_pending_frame = first_pending_frame_;
+  s.frames_total = frames_total_;
+  s.frames_limit = frames_limit_;
+  s.ended = ended_;
+  s.cond = cond_;
+  s.uncond = uncond_;
+  s.upper_code = upper_code_;
+  s.lower_code = lower_code_;
+  s.upper_decoder = upper_state_;
+  s.lower_decoder = lower_state_;
+  s.pose = pose_;
+  s.output = output_;
+  return s;
+}
+
+absl::Status Session::Restore(const SessionSnapshot& s) {
+  if (s.input_sample_rate != options_.input_sample_rate || s.input_channels != options_.input_channels) {
+    return absl::InvalidArgumentError("session restore: snapshot has a different input format");
+  }
+  const SequenceState fresh = model_->sequence().NewState();
+  if (s.cond.keys.size() != fresh.keys.size() || s.cond.conv.size() != fresh.conv.size() ||
+      s.cond.style_bias.rows() != fresh.style_bias.rows() || s.cond.style_bias.cols() != fresh.style_bias.cols() ||
+      (!s.cond.keys.empty() && s.cond.keys[0].size() != fresh.keys[0].size()) ||
+      s.upper_decoder.history.size() != upper_state_.history.size() ||
+      s.lower_decoder.history.size() != lower_state_.history.size()) {
+    return absl::InvalidArgumentError("session restore: snapshot is from a different model");
+  }
+  DANCE_RETURN_IF_ERROR(ValidateSamplingOptions(s.sampling));
+  DANCE_RETURN_IF_ERROR(front_end_->Restore(s.front_end));
+  style_ = s.style;
+  sampling_ = s.sampling;
+  generator_ = s.generator;
+  pending_features_ = s.pending_features;
+  pending_pre_ = s.pending_pre;
+  first_pending_frame_ = s.first_pending_frame;
+  frames_total_ = s.frames_total;
+  frames_limit_ = s.frames_limit;
+  ended_ = s.ended;
+  cond_ = s.cond;
+  uncond_ = s.uncond;
+  upper_code_ = s.upper_code;
+  lower_code_ = s.lower_code;
+  upper_state_ = s.upper_decoder;
+  lower_state_ = s.lower_decoder;
+  pose_ = s.pose;
+  output_ = s.output;
+  return absl::OkStatus();
+}
+
+void Session::Reset() {
+  front_end_->Reset();
+  popped_.Clear();
+  pending_features_.clear();
+  pending_pre_.clear();
+  first_pending_frame_ = 0;
+  frames_total_ = 0;
+  frames_limit_ = -1;
+  ended_ = false;
+  generator_.seed(options_.seed);
+  sampling_ = options_.sampling;
+  const SequenceModel& seq = model_->sequence();
+  cond_ = seq.NewState();
+  uncond_ = seq.NewState();
+  ApplyStyle(options_.style).IgnoreError();  // validated by Create
+  upper_code_ = lower_code_ = model_->config().codebook_size;
+  upper_state_.Clear();
+  lower_state_.Clear();
+  pose_ = PoseState();
+  output_.clear();
+}
+
+int64_t Session::StateBytes() const {
+  int64_t n = static_cast<int64_t>(sizeof(*this)) + cond_.Bytes() + upper_state_.Bytes() + lower_state_.Bytes();
+  if (uses_guidance()) n += uncond_.Bytes();
+  n += static_cast<int64_t>(sizeof(audio::AudioFrontEnd) + sizeof(audio::FeatureExtractorState));
+  n += static_cast<int64_t>((pending_features_.capacity() + pending_pre_.capacity()) * sizeof(float));
+  return n;
+}
+
+absl::Status StepBatch(absl::Span<Session* const> sessions) {
+  thread_local Workspace workspace;
+  thread_local std::vector<LaneInput> lanes;
+  thread_local std::vector<Session*> sorted;
+  thread_local std::vector<int> first_lane;
+  thread_local std::vector<Session*> group;
+  thread_local std::vector<int> upper_codes, lower_codes;
+  thread_local std::vector<VqDecoderState*> upper_states, lower_states;
+  thread_local VqDecoderScratch upper_scratch, lower_scratch;
+  sorted.assign(sessions.begin(), sessions.end());
+  std::sort(sorted.begin(), sorted.end());
+  if (std::adjacent_find(sorted.begin(), sorted.end()) != sorted.end()) {
+    return absl::InvalidArgumentError("StepBatch: a session appears twice");
+  }
+  for (Session* s : sessions) {
+    if (s == nullptr) return absl::InvalidArgumentError("StepBatch: null session");
+    if (s->StepsReady() <= 0) {
+      return absl::FailedPreconditionError(
+          absl::StrCat("StepBatch: a session has no step ready (its audio for step ", s->steps_done(),
+                       " has not arrived)"));
+    }
+  }
+  // One pass per distinct model (normally exactly one).
+  size_t done = 0;
+  std::vector<bool> handled;  // only when several models share a batch (rare)
+  while (done < sessions.size()) {
+    const Model* model = nullptr;
+    lanes.clear();
+    first_lane.clear();
+    for (size_t i = 0; i < sessions.size(); ++i) {
+      Session* s = sessions[i];
+      if (!handled.empty() && handled[i]) continue;
+      if (model == nullptr) model = s->model_.get();
+      if (s->model_.get() != model) {
+        if (handled.empty()) handled.assign(sessions.size(), false);
+        first_lane.push_back(-1);
+        continue;
+      }
+      LaneInput in;
+      s->StepInputs(&in.music, &in.pre);
+      in.upper_code = s->upper_code_;
+      in.lower_code = s->lower_code_;
+      in.state = &s->cond_;
+      first_lane.push_back(static_cast<int>(lanes.size()));
+      lanes.push_back(in);
+      if (s->uses_guidance()) {
+        in.state = &s->uncond_;
+        lanes.push_back(in);
+      }
+    }
+    model->sequence().Step(lanes, workspace);
+    size_t slot = 0;
+    for (size_t i = 0; i < sessions.size(); ++i) {
+      if (!handled.empty() && handled[i]) continue;
+      const int lane = first_lane[slot++];
+      if (lane < 0) continue;
+      Session* s = sessions[i];
+      const float* uu = nullptr;
+      const float* ul = nullptr;
+      if (s->uses_guidance()) {
+        uu = workspace.logits_u.col(lane + 1).data();
+        ul = workspace.logits_l.col(lane + 1).data();
+      }
+      s->SampleCodes(workspace.logits_u.col(lane).data(), workspace.logits_l.col(lane).data(), uu, ul);
+      group.push_back(s);
+    }
+    // Both VQ decoders over the whole group (one GEMM per conv), then per-session reconstruction.
+    upper_codes.clear();
+    lower_codes.clear();
+    upper_states.clear();
+    lower_states.clear();
+    for (Session* s : group) {
+      upper_codes.push_back(s->upper_code_);
+      lower_codes.push_back(s->lower_code_);
+      upper_states.push_back(&s->upper_state_);
+      lower_states.push_back(&s->lower_state_);
+    }
+    const auto up = model->upper_decoder().DecodeBatch(upper_codes, upper_states, upper_scratch);
+    const auto low = model->lower_decoder().DecodeBatch(lower_codes, lower_states, lower_scratch);
+    const int fpc = model->config().frames_per_step;
+    for (size_t g = 0; g < group.size(); ++g) {
+      group[g]->EmitFrames(up.middleCols(g * fpc, fpc), low.middleCols(g * fpc, fpc));
+    }
+    for (size_t i = 0; i < sessions.size(); ++i) {
+      if (!handled.empty() && sessions[i]->model_.get() == model) handled[i] = true;
+    }
+    done += group.size();
+    group.clear();
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace dance::engine

@@ -1,0 +1,182 @@
+// Session: one performer's stream through the whole engine. It owns every piece of per-stream state
+// (resampler, feature extractor + incremental PRE, the sequence model's KV caches and Mamba states, the
+// sampler's generator, both VQ decoders' conv histories and the root integrator) behind one interface:
+// push audio, step, pop pose frames; reset, snapshot and restore; change style or sampling mid-stream.
+//
+// Usage:
+//   absl::StatusOr<std::shared_ptr<const Model>> model = LoadModel("models/default.dncw");
+//   SessionOptions opt;  opt.input_sample_rate = 44100;  opt.input_channels = 2;  opt.seed = 7;
+//   absl::StatusOr<std::unique_ptr<Session>> s = Session::Create(*model, opt);
+//   (*s)->PushAudio(chunk);                       // any chunk size; interleaved float PCM in [-1, 1]
+//   while ((*s)->StepsReady() > 0) (*s)->Step();  // or StepBatch over many sessions
+//   std::vector<PoseFrame> frames;  (*s)->PopFrames(&frames);
+//   ...  (*s)->EndOfAudio();  drain steps and frames the same way.
+//
+// Determinism: the same audio, options and seed give the same frames, however the audio is chunked and
+// whether sessions step alone or batched. Snapshot() then Restore() continues exactly as if uninterrupted.
+//
+// Timeline: step t covers pose frames [4t, 4t + 4) and emits the frames of period t + 1 (docs/model.md
+// section 2), so the first frame emitted has index 4 and time_s = 4/30 s. A step is ready when the audio of
+// its music token (period t + music_lookahead_steps) has fully arrived; after EndOfAudio the last partial
+// period is padded with silence so the dance covers the whole song.
+//
+// Errors: Create/SetStyle/SetSampling return InvalidArgument for bad settings (rate outside
+// [8000, 96000], channels outside [1, 8], unknown style, negative temperature, ...); PushAudio refuses
+// a chunk whose length is not a multiple of the channel count, and audio after EndOfAudio
+// (FailedPrecondition); Step without a ready step is FailedPrecondition.
+//
+// Thread safety: a Session is not thread-safe (one owner at a time); different sessions may be used from
+// different threads, sharing one Model. StepBatch needs all its sessions to be owned by the caller.
+#ifndef DANCE_ENGINE_RUNTIME_SESSION_H_
+#define DANCE_ENGINE_RUNTIME_SESSION_H_
+
+#include <array>
+#include <cstdint>
+#include <deque>
+#include <memory>
+#include <random>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "Eigen/Core"
+#include "Eigen/Geometry"
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "absl/types/span.h"
+#include "engine/audio/audio_front_end.h"
+#include "engine/model/sequence_state.h"
+#include "engine/nn/sampling.h"
+#include "engine/runtime/model.h"
+#include "engine/vq/pose_reconstructor.h"
+#include "engine/vq/vq_decoder.h"
+
+namespace dance::engine {
+
+struct SessionOptions {
+  int input_sample_rate = 24000;  // Hz, 8000..96000
+  int input_channels = 1;         // 1..8, interleaved; downmixed to mono by averaging
+  std::vector<std::pair<std::string, float>> style;  // empty = "none"; weights >= 0, normalised to sum 1
+  uint64_t seed = 0;
+  SamplingOptions sampling;
+};
+
+struct PoseFrame {
+  int64_t index = 0;     // pose frame index since stream start (30 fps)
+  double time_s = 0.0;   // audio time of this frame's start, seconds on the input timeline (index / 30)
+  std::array<Eigen::Vector3f, 24> positions;     // metres, Y up, SMPL order, bone lengths canonical
+  std::array<Eigen::Quaternionf, 24> rotations;  // local joint rotations (relative to the parent's frame)
+  int upper_code = 0;
+  int lower_code = 0;
+};
+
+// Everything a Session remembers, as a copyable value (opaque to callers; valid only for a session of the
+// same model and input format).
+struct SessionSnapshot {
+  int input_sample_rate = 0;
+  int input_channels = 0;
+  std::vector<std::pair<std::string, float>> style;
+  SamplingOptions sampling;
+  std::mt19937_64 generator;
+  audio::AudioFrontEndSnapshot front_end;
+  std::vector<float> pending_features;  // (frames, F) not consumed yet, from first_pending_frame
+  std::vector<float> pending_pre;       // (frames, P)
+  int64_t first_pending_frame = 0;
+  int64_t frames_total = 0;
+  int64_t frames_limit = -1;
+  bool ended = false;
+  SequenceState cond;
+  SequenceState uncond;
+  int upper_code = 0, lower_code = 0;
+  VqDecoderState upper_decoder, lower_decoder;
+  PoseState pose;
+  std::vector<PoseFrame> output;
+};
+
+class Session {
+ public:
+  static absl::StatusOr<std::unique_ptr<Session>> Create(std::shared_ptr<const Model> model,
+                                                         const SessionOptions& options);
+  ~Session();
+  Session(const Session&) = delete;
+  Session& operator=(const Session&) = delete;
+
+  // Interleaved float samples at the input rate; any length that is a multiple of the channel count.
+  // Non-finite samples are treated as 0.
+  absl::Status PushAudio(absl::Span<const float> interleaved);
+  // The same for 16-bit PCM (scaled by 1/32768).
+  absl::Status PushAudioInt16(absl::Span<const int16_t> interleaved);
+  // No more audio: flushes the resampler and pads the last period with silence.
+  void EndOfAudio();
+  // Code steps whose audio has fully arrived and that have not been taken yet.
+  int StepsReady() const;
+  // Advances one step (== StepBatch of this session alone).
+  absl::Status Step();
+  // Appends the frames produced so far, in order, to `out` and forgets them.
+  void PopFrames(std::vector<PoseFrame>* out);
+
+  // Changes the style from the next step on; InvalidArgument for an unknown name or a bad weight.
+  absl::Status SetStyle(const std::vector<std::pair<std::string, float>>& style);
+  absl::Status SetSampling(const SamplingOptions& sampling);
+
+  absl::StatusOr<SessionSnapshot> Snapshot() const;
+  absl::Status Restore(const SessionSnapshot& snapshot);
+  // Back to the state right after Create (same options, seed and style).
+  void Reset();
+
+  // Declared model latency in ms (music lookahead; the front end adds none).
+  double LatencyMs() const { return model_->LatencyMs(); }
+  // Steps taken so far.
+  int64_t steps_done() const { return cond_.step; }
+  // Approximate bytes of per-session state (caches, states, buffers).
+  int64_t StateBytes() const;
+  const Model& model() const { return *model_; }
+
+ private:
+  friend absl::Status StepBatch(absl::Span<Session* const> sessions);
+  Session(std::shared_ptr<const Model> model, const SessionOptions& options);
+
+  absl::Status ApplyStyle(const std::vector<std::pair<std::string, float>>& style);
+  // Moves the front end's finished frames into pending_.
+  void CollectFrames();
+  bool uses_guidance() const { return sampling_.guidance != 1.0f; }
+  // Pointers to this step's music token (4F) and PRE (P), valid until the next PushAudio.
+  void StepInputs(const float** music, const float** pre);
+  // After the model ran: sample this step's codes from the lane logits (guidance applied if on).
+  void SampleCodes(const float* logits_u, const float* logits_l, const float* uncond_u, const float* uncond_l);
+  // After the VQ decoders ran: reconstructs and queues this step's frames ((45, 4) and (31, 4) features).
+  void EmitFrames(const Eigen::Ref<const Eigen::MatrixXf>& upper, const Eigen::Ref<const Eigen::MatrixXf>& lower);
+
+  std::shared_ptr<const Model> model_;
+  SessionOptions options_;
+  SamplingOptions sampling_;
+  std::vector<std::pair<std::string, float>> style_;
+  std::mt19937_64 generator_;
+  std::unique_ptr<audio::AudioFrontEnd> front_end_;
+  audio::FeatureFrames popped_;            // scratch
+  std::vector<float> pending_features_;    // (frames, F) not yet consumed, from frame first_pending_frame_
+  std::vector<float> pending_pre_;         // (frames, P)
+  int64_t first_pending_frame_ = 0;
+  int64_t frames_total_ = 0;               // feature frames received from the front end
+  int64_t frames_limit_ = -1;              // after EndOfAudio: frames that count (whole periods)
+  bool ended_ = false;
+  std::vector<float> music_token_;  // (4F) scratch
+  SequenceState cond_;
+  SequenceState uncond_;          // style "none", used when guidance != 1
+  int upper_code_ = 0, lower_code_ = 0;
+  VqDecoderState upper_state_, lower_state_;
+  PoseReconstructor reconstructor_;
+  PoseState pose_;
+  SamplerScratch sampler_;
+  std::vector<float> guided_u_, guided_l_;  // (K) scratch
+  std::vector<PoseFrame> output_;
+};
+
+// Advances each session by one step with one pass over the weights for all of them (every Linear is a
+// matrix-matrix product over the batch). Every session must have StepsReady() > 0 (FailedPrecondition
+// otherwise, and then no session advances); a session must not appear twice. Uses a per-thread workspace.
+absl::Status StepBatch(absl::Span<Session* const> sessions);
+
+}  // namespace dance::engine
+
+#endif  // DANCE_ENGINE_RUNTIME_SESSION_H_

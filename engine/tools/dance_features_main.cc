@@ -1,0 +1,217 @@
+// dance-features: decodes an audio file and writes the engine's causal features as .npy arrays.
+//
+//   dance-features AUDIO --out FEATURES.npy [--pre PRE.npy] [--pre-input PRE_INPUT.npy]
+//                  [--chunk-samples N] [--summary]
+//
+// FEATURES.npy: float32 (frames, 108); FEATURES.npy.json: the layout (names, index ranges, units).
+// PRE.npy: float32 (frames, 128). PRE_INPUT.npy: float32 (frames, 4), PRE's input channels (for the
+// Python batch reference). --chunk-samples feeds the stream in chunks of N input frames (default
+// 4096; the output does not depend on it). --summary prints one JSON line to stdout.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <string>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "engine/audio/audio_front_end.h"
+#include "engine/audio/decoder.h"
+#include "engine/audio/feature_layout.h"
+#include "engine/audio/npy_writer.h"
+#include "nlohmann/json.hpp"
+
+namespace {
+
+using namespace dance::engine::audio;  // NOLINT: a tool's main
+
+struct Flags {
+  std::string audio, out, pre, pre_input;
+  int64_t chunk_samples = 4096;
+  bool summary = false;
+};
+
+constexpr char kUsage[] =
+    "usage: dance-features AUDIO --out FEATURES.npy [--pre PRE.npy] [--pre-input PRE_INPUT.npy]\n"
+    "                      [--chunk-samples N] [--summary]\n";
+
+absl::Status ParseFlags(int argc, char** argv, Flags* flags) {
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    auto value = [&](std::string* dst) -> absl::Status {
+      if (i + 1 >= argc) return absl::InvalidArgumentError(absl::StrCat(arg, " needs a value"));
+      *dst = argv[++i];
+      return absl::OkStatus();
+    };
+    absl::Status s;
+    if (arg == "--out") {
+      s = value(&flags->out);
+    } else if (arg == "--pre") {
+      s = value(&flags->pre);
+    } else if (arg == "--pre-input") {
+      s = value(&flags->pre_input);
+    } else if (arg == "--chunk-samples") {
+      std::string v;
+      s = value(&v);
+      if (s.ok() && (!absl::SimpleAtoi(v, &flags->chunk_samples) || flags->chunk_samples < 1)) {
+        s = absl::InvalidArgumentError(
+            absl::StrCat("--chunk-samples must be a positive integer, got '", v, "'"));
+      }
+    } else if (arg == "--summary") {
+      flags->summary = true;
+    } else if (arg == "-h" || arg == "--help") {
+      return absl::CancelledError("help");
+    } else if (!arg.empty() && arg[0] == '-') {
+      s = absl::InvalidArgumentError(absl::StrCat("unknown flag ", arg));
+    } else if (flags->audio.empty()) {
+      flags->audio = arg;
+    } else {
+      s = absl::InvalidArgumentError(absl::StrCat("unexpected argument ", arg));
+    }
+    if (!s.ok()) return s;
+  }
+  if (flags->audio.empty()) return absl::InvalidArgumentError("no AUDIO file given");
+  if (flags->out.empty() && !flags->summary && flags->pre.empty() && flags->pre_input.empty()) {
+    return absl::InvalidArgumentError("nothing to do: give --out, --pre, --pre-input or --summary");
+  }
+  return absl::OkStatus();
+}
+
+nlohmann::json LayoutJson() {
+  nlohmann::json f = nlohmann::json::array();
+  auto add = [&](const char* name, int begin, int count, const char* unit) {
+    f.push_back({{"name", name}, {"begin", begin}, {"end", begin + count}, {"unit", unit}});
+  };
+  add("mfcc", kMfccBegin, kNumMfcc, "DCT-II (ortho) of 64-band log-mel in dB");
+  add("delta_mfcc", kDeltaMfccBegin, kNumMfcc, "mfcc[n] - mfcc[n-1], dB");
+  add("chroma", kChromaBegin, kNumChroma, "C..B, max-normalised, [0, 1]");
+  add("onset_strength", kOnsetIndex, 1, "mean positive log-mel increase, dB");
+  add("rms_db", kRmsDbIndex, 1, "dBFS, floor -100");
+  add("tempogram", kTempogramBegin, kNumTempogram,
+      "normalised autocorrelation, 60..240 BPM log-spaced");
+  add("beat_phase", kBeatPhaseCosIndex, 2, "(cos, sin) of 2 pi x beat fraction");
+  add("tempo", kTempoIndex, 1, "log2(bpm / 120)");
+  add("bar_phase", kBarPhaseCosIndex, 2, "(cos, sin) of 2 pi x bar fraction (4 beats)");
+  add("beat_confidence", kBeatConfidenceIndex, 1, "[0, 1]");
+  return {
+      {"format", "dance-features/v1"},
+      {"sample_rate", kSampleRate},
+      {"hop_samples", kHopSamples},
+      {"window_samples", kWindowSamples},
+      {"fps", kFrameRate},
+      {"lookahead_samples", AudioFrontEnd::LookaheadSamples()},
+      {"dims", kNumFeatures},
+      {"features", f},
+      {"pre",
+       {{"dims", kPreDims},
+        {"channels", kPreChannels},
+        {"window_frames", kPreWindow},
+        {"bins", {kPreFirstBin, kPreFirstBin + kPreNumBins - 1}},
+        {"layout", "[channel][bin][cos, sin]"},
+        {"epsilon", kPreEpsilon},
+        {"channel_names", {"onset_strength", "rms_db/10", "low_band_db/10", "high_band_flux"}}}}};
+}
+
+absl::Status Run(const Flags& flags) {
+  absl::StatusOr<DecodedAudio> audio = DecodeAudioFile(flags.audio);
+  if (!audio.ok()) return audio.status();
+  AudioFrontEndOptions options;
+  options.sample_rate = audio->sample_rate;
+  options.channels = audio->channels;
+  absl::StatusOr<std::unique_ptr<AudioFrontEnd>> fe = AudioFrontEnd::Create(options);
+  if (!fe.ok()) return fe.status();
+
+  FeatureFrames all, part;
+  auto drain = [&]() {
+    (*fe)->PopFrames(&part);
+    all.features.insert(all.features.end(), part.features.begin(), part.features.end());
+    all.pre.insert(all.pre.end(), part.pre.begin(), part.pre.end());
+    all.pre_input.insert(all.pre_input.end(), part.pre_input.begin(), part.pre_input.end());
+    all.beat_times_s.insert(all.beat_times_s.end(), part.beat_times_s.begin(),
+                            part.beat_times_s.end());
+  };
+  const int64_t total = audio->frames();
+  const int64_t step = flags.chunk_samples;
+  for (int64_t start = 0; start < total; start += step) {
+    const int64_t n = std::min(step, total - start);
+    absl::Status s = (*fe)->PushFloat(absl::MakeConstSpan(
+        audio->samples.data() + start * audio->channels, static_cast<size_t>(n * audio->channels)));
+    if (!s.ok()) return s;
+    drain();
+  }
+  if (absl::Status s = (*fe)->Flush(); !s.ok()) return s;
+  drain();
+  const int64_t frames = all.frames();
+
+  if (!flags.out.empty()) {
+    if (absl::Status s = WriteNpyFloat32(flags.out, all.features, frames, kNumFeatures); !s.ok())
+      return s;
+    std::ofstream meta(flags.out + ".json");
+    meta << LayoutJson().dump(1) << "\n";
+    if (!meta) return absl::UnavailableError(absl::StrCat("cannot write ", flags.out, ".json"));
+  }
+  if (!flags.pre.empty()) {
+    if (absl::Status s = WriteNpyFloat32(flags.pre, all.pre, frames, kPreDims); !s.ok()) return s;
+  }
+  if (!flags.pre_input.empty()) {
+    if (absl::Status s = WriteNpyFloat32(flags.pre_input, all.pre_input, frames, kPreChannels);
+        !s.ok()) {
+      return s;
+    }
+  }
+  if (flags.summary) {
+    const double tempo =
+        frames > 0 ? 120.0 * std::exp2(all.features[(frames - 1) * kNumFeatures + kTempoIndex])
+                   : 0.0;
+    // Song-level tempo: median of the running tempo after the first 10 s (the tracker's warm-up).
+    std::vector<float> running;
+    for (int64_t n = std::min<int64_t>(300, frames / 2); n < frames; ++n) {
+      running.push_back(all.features[n * kNumFeatures + kTempoIndex]);
+    }
+    double median = 0.0;
+    if (!running.empty()) {
+      std::nth_element(running.begin(), running.begin() + running.size() / 2, running.end());
+      median = 120.0 * std::exp2(running[running.size() / 2]);
+    }
+    nlohmann::json beats = nlohmann::json::array();
+    for (double t : all.beat_times_s) beats.push_back(std::round(t * 1000.0) / 1000.0);
+    nlohmann::json summary = {{"audio", flags.audio},
+                              {"sample_rate", audio->sample_rate},
+                              {"channels", audio->channels},
+                              {"duration_s", audio->duration_s()},
+                              {"frames", frames},
+                              {"dims", kNumFeatures},
+                              {"pre_dims", kPreDims},
+                              {"tempo_bpm", std::round(tempo * 100.0) / 100.0},
+                              {"tempo_median_bpm", std::round(median * 100.0) / 100.0},
+                              {"sanitized_samples", (*fe)->sanitized_samples()},
+                              {"beats_s", beats}};
+    std::cout << summary.dump() << std::endl;
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Flags flags;
+  absl::Status s = ParseFlags(argc, argv, &flags);
+  if (absl::IsCancelled(s)) {
+    std::cout << kUsage;
+    return 0;
+  }
+  if (!s.ok()) {
+    std::cerr << "dance-features: " << s.message() << "\n" << kUsage;
+    return 2;
+  }
+  s = Run(flags);
+  if (!s.ok()) {
+    std::cerr << "dance-features: " << s << "\n";
+    return 1;
+  }
+  return 0;
+}

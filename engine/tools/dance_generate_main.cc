@@ -1,0 +1,194 @@
+// dance-generate: runs the streaming Session over an audio file (no server) and writes the dance.
+//
+//   dance-generate --audio FILE --out DANCE.json [--model M (default models/default.dncw)] [--seed S] [--style NAME[:W][,NAME:W...]]
+//                  [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--chunk-samples N]
+//                  [--bvh DANCE.bvh] [--quiet]
+//
+// The audio is pushed in chunks of N input frames (default 4096; the dance does not depend on N), stepping
+// whenever a step is ready, exactly as a live stream would. Frames past the end of the audio are dropped.
+// Prints one JSON summary line (frames, seconds of audio, wall time, x real time) unless --quiet.
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <string>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
+#include "engine/audio/decoder.h"
+#include "engine/runtime/dance_writer.h"
+#include "engine/runtime/model.h"
+#include "engine/runtime/session.h"
+#include "nlohmann/json.hpp"
+
+namespace {
+
+using namespace dance::engine;  // NOLINT: a tool's main
+
+struct Flags {
+  std::string audio, out, bvh, model;
+  uint64_t seed = 0;
+  std::string style;
+  SamplingOptions sampling;
+  int64_t chunk_samples = 4096;
+  bool quiet = false;
+};
+
+constexpr char kUsage[] =
+    "usage: dance-generate --audio FILE --out DANCE.json [--model M] [--seed S] [--style NAME[:W],...]\n"
+    "                      [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--chunk-samples N]\n"
+    "                      [--bvh DANCE.bvh] [--quiet]\n";
+
+absl::Status ParseFlags(int argc, char** argv, Flags* f) {
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg == "--quiet") {
+      f->quiet = true;
+      continue;
+    }
+    if (arg == "--help" || arg == "-h") return absl::InvalidArgumentError("");
+    if (i + 1 >= argc) return absl::InvalidArgumentError(absl::StrCat(arg, " needs a value"));
+    const std::string v = argv[++i];
+    bool ok = true;
+    if (arg == "--audio") {
+      f->audio = v;
+    } else if (arg == "--out") {
+      f->out = v;
+    } else if (arg == "--bvh") {
+      f->bvh = v;
+    } else if (arg == "--model") {
+      f->model = v;
+    } else if (arg == "--style") {
+      f->style = v;
+    } else if (arg == "--seed") {
+      ok = absl::SimpleAtoi(v, &f->seed);
+    } else if (arg == "--temperature") {
+      ok = absl::SimpleAtof(v, &f->sampling.temperature);
+    } else if (arg == "--top-k") {
+      ok = absl::SimpleAtoi(v, &f->sampling.top_k);
+    } else if (arg == "--top-p") {
+      ok = absl::SimpleAtof(v, &f->sampling.top_p);
+    } else if (arg == "--guidance") {
+      ok = absl::SimpleAtof(v, &f->sampling.guidance);
+    } else if (arg == "--chunk-samples") {
+      ok = absl::SimpleAtoi(v, &f->chunk_samples) && f->chunk_samples >= 1;
+    } else {
+      return absl::InvalidArgumentError(absl::StrCat("unknown flag ", arg));
+    }
+    if (!ok) return absl::InvalidArgumentError(absl::StrCat("bad value for ", arg, ": '", v, "'"));
+  }
+  if (f->audio.empty() || f->out.empty()) return absl::InvalidArgumentError("--audio and --out are required");
+  return absl::OkStatus();
+}
+
+// "waltz" or "waltz:0.7,tango:0.3" -> pairs.
+absl::StatusOr<std::vector<std::pair<std::string, float>>> ParseStyle(const std::string& text) {
+  std::vector<std::pair<std::string, float>> out;
+  if (text.empty()) return out;
+  for (absl::string_view part : absl::StrSplit(text, ',')) {
+    std::vector<std::string> kv = absl::StrSplit(part, ':');
+    float w = 1.0f;
+    if (kv.size() > 2 || kv[0].empty() || (kv.size() == 2 && !absl::SimpleAtof(kv[1], &w))) {
+      return absl::InvalidArgumentError(absl::StrCat("bad --style entry '", part, "' (want NAME or NAME:WEIGHT)"));
+    }
+    out.emplace_back(kv[0], w);
+  }
+  return out;
+}
+
+constexpr char kDefaultModel[] = "models/default.dncw";
+constexpr char kFallbackModel[] = "models/test-tiny.dncw";  // until the trained model is committed
+
+absl::Status Run(Flags flags) {
+  if (flags.model.empty()) {
+    flags.model = kDefaultModel;
+    if (!std::filesystem::exists(flags.model) && std::filesystem::exists(kFallbackModel)) {
+      std::cerr << "dance-generate: " << kDefaultModel << " not found; using " << kFallbackModel
+                << " (random weights)\n";
+      flags.model = kFallbackModel;
+    }
+  }
+  absl::StatusOr<std::shared_ptr<const Model>> model = LoadModel(flags.model);
+  if (!model.ok()) return model.status();
+  absl::StatusOr<audio::DecodedAudio> audio = audio::DecodeAudioFile(flags.audio);
+  if (!audio.ok()) return audio.status();
+  SessionOptions options;
+  options.input_sample_rate = audio->sample_rate;
+  options.input_channels = audio->channels;
+  options.seed = flags.seed;
+  options.sampling = flags.sampling;
+  absl::StatusOr<std::vector<std::pair<std::string, float>>> style = ParseStyle(flags.style);
+  if (!style.ok()) return style.status();
+  options.style = *style;
+  absl::StatusOr<std::unique_ptr<Session>> session = Session::Create(*model, options);
+  if (!session.ok()) return session.status();
+  Session& s = **session;
+
+  const auto start = std::chrono::steady_clock::now();
+  const size_t stride = static_cast<size_t>(flags.chunk_samples) * audio->channels;
+  for (size_t pos = 0; pos < audio->samples.size(); pos += stride) {
+    const size_t n = std::min(stride, audio->samples.size() - pos);
+    if (absl::Status st = s.PushAudio(absl::MakeConstSpan(audio->samples.data() + pos, n)); !st.ok()) return st;
+    while (s.StepsReady() > 0) {
+      if (absl::Status st = s.Step(); !st.ok()) return st;
+    }
+  }
+  s.EndOfAudio();
+  while (s.StepsReady() > 0) {
+    if (absl::Status st = s.Step(); !st.ok()) return st;
+  }
+  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  std::vector<PoseFrame> frames;
+  s.PopFrames(&frames);
+  const double duration = audio->duration_s();
+  while (!frames.empty() && frames.back().time_s >= duration) frames.pop_back();
+
+  DanceInfo info;
+  info.model_id = (*model)->model_id();
+  info.seed = flags.seed;
+  nlohmann::json style_json = nlohmann::json::object();
+  for (const auto& [name, w] : options.style) style_json[name] = w;
+  info.extra = {{"style", style_json},
+                {"temperature", flags.sampling.temperature},
+                {"top_k", flags.sampling.top_k},
+                {"top_p", flags.sampling.top_p},
+                {"guidance", flags.sampling.guidance},
+                {"audio_file", flags.audio},
+                {"audio_duration_s", duration},
+                {"latency_ms", s.LatencyMs()},
+                {"generator", "dance-generate"}};
+  if (absl::Status st = WriteDanceJson(flags.out, (*model)->skeleton(), frames, info); !st.ok()) return st;
+  if (!flags.bvh.empty()) {
+    if (absl::Status st = WriteBvh(flags.bvh, (*model)->skeleton(), frames); !st.ok()) return st;
+  }
+  if (!flags.quiet) {
+    nlohmann::json summary = {{"frames", frames.size()},
+                              {"steps", s.steps_done()},
+                              {"audio_s", duration},
+                              {"wall_s", wall_s},
+                              {"x_real_time", wall_s > 0 ? duration / wall_s : 0.0},
+                              {"model_id", (*model)->model_id()},
+                              {"out", flags.out}};
+    std::cout << summary.dump() << std::endl;
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Flags flags;
+  if (absl::Status s = ParseFlags(argc, argv, &flags); !s.ok()) {
+    if (!s.message().empty()) std::cerr << "dance-generate: " << s.message() << "\n";
+    std::cerr << kUsage;
+    return 2;
+  }
+  if (absl::Status s = Run(flags); !s.ok()) {
+    std::cerr << "dance-generate: " << s << "\n";
+    return 1;
+  }
+  return 0;
+}

@@ -1,0 +1,85 @@
+// DanceServer: the whole service in one object: engine backend, session hub (admission + schedulers),
+// the gRPC server (DanceService, health, reflection) and the HTTP/WebSocket server. main.cc maps flags to
+// DanceServerOptions; integration tests start one on port 0.
+//
+// Usage:
+//   ASSIGN_OR_RETURN(auto backend, LoadEngineBackend("models/test-tiny.dncw"));
+//   DanceServerOptions o; o.port = 0; o.http_port = 0;
+//   ASSIGN_OR_RETURN(std::unique_ptr<DanceServer> server, DanceServer::Start(std::move(backend), o));
+//   Connect to absl::StrCat("localhost:", server->port()); ...
+//   server->Drain(absl::Seconds(30));    // SIGTERM path: refuse new sessions, let live ones finish
+//   server->Shutdown();                  // idempotent; also run by the destructor
+//
+// Thread safety: Drain and Shutdown may be called from any thread (once each is enough).
+#ifndef DANCE_SERVER_DANCE_SERVER_H_
+#define DANCE_SERVER_DANCE_SERVER_H_
+
+#include <memory>
+#include <string>
+
+#include <grpcpp/grpcpp.h>
+
+#include "absl/status/statusor.h"
+#include "absl/synchronization/mutex.h"
+#include "absl/time/time.h"
+#include "server/dance_service.h"
+#include "server/engine_port.h"
+#include "server/http_server.h"
+#include "server/metrics.h"
+#include "server/session_hub.h"
+#include "server/web_handler.h"
+
+namespace dance::server {
+
+struct DanceServerOptions {
+  std::string host = "0.0.0.0";
+  int port = 50051;                    // gRPC; 0 = pick a free port
+  int http_port = 8080;                // HTTP/WebSocket; 0 = pick a free port, -1 = no HTTP server
+  HubOptions hub;
+  ServiceOptions service;              // auth_token and limits are copied into `web` by Start
+  WebOptions web;
+  int max_http_connections = 256;
+  int max_message_bytes = 4 << 20;     // largest gRPC message accepted
+  absl::Duration keepalive_time = absl::Seconds(30);
+  absl::Duration keepalive_timeout = absl::Seconds(10);
+  std::string tls_cert_file;           // both set = TLS on the gRPC port
+  std::string tls_key_file;
+};
+
+class DanceServer {
+ public:
+  static absl::StatusOr<std::unique_ptr<DanceServer>> Start(std::unique_ptr<EngineBackend> backend,
+                                                            DanceServerOptions options);
+  ~DanceServer();
+
+  int port() const { return port_; }
+  int http_port() const { return http_port_; }
+  SessionHub& hub() { return *hub_; }
+  ServerMetrics& metrics() { return metrics_; }
+
+  // Marks the server NOT_SERVING, refuses new sessions (UNAVAILABLE) and waits up to `timeout` for live
+  // sessions to end. Returns true if all ended in time. Shutdown() afterwards ends the rest.
+  bool Drain(absl::Duration timeout);
+  void Shutdown();
+
+ private:
+  DanceServer() = default;
+  void SetHealth(bool serving);
+
+  DanceServerOptions options_;
+  ServerMetrics metrics_;
+  std::unique_ptr<EngineBackend> backend_;
+  std::unique_ptr<SessionHub> hub_;
+  std::unique_ptr<DanceServiceImpl> service_;
+  std::unique_ptr<WebHandler> web_;
+  std::unique_ptr<grpc::Server> grpc_;
+  std::unique_ptr<HttpServer> http_;
+  int port_ = 0;
+  int http_port_ = -1;
+  absl::Mutex mu_;
+  bool shut_down_ ABSL_GUARDED_BY(mu_) = false;
+};
+
+}  // namespace dance::server
+
+#endif  // DANCE_SERVER_DANCE_SERVER_H_

@@ -1,0 +1,65 @@
+// DanceServiceImpl: the gRPC callback service for dance.v1.DanceService.
+//
+// Perform and Watch are reactors that never block: Perform validates each message and queues it on its
+// LiveSession (the scheduler thread does the engine work); outgoing updates go through a StreamWriter.
+// Unary calls answer inline from the hub's registry.
+//
+// Usage (see dance_server.cc):
+//   DanceServiceImpl service(&hub, &metrics, options);
+//   builder.RegisterService(&service);
+//
+// Thread safety: gRPC calls the service from its own threads; the service itself is stateless beyond the
+// hub and metrics, which are thread-safe. It must outlive the grpc::Server.
+#ifndef DANCE_SERVER_DANCE_SERVICE_H_
+#define DANCE_SERVER_DANCE_SERVICE_H_
+
+#include <string>
+
+#include <grpcpp/grpcpp.h>
+
+#include "absl/status/status.h"
+#include "dance/v1/dance.grpc.pb.h"
+#include "server/convert.h"
+#include "server/metrics.h"
+#include "server/session_hub.h"
+
+namespace dance::server {
+
+struct ServiceOptions {
+  std::string auth_token;              // empty = no authentication
+  StreamLimits limits;
+  size_t performer_queue_limit = 1024; // updates queued for a performer before RESOURCE_EXHAUSTED
+  size_t viewer_queue_frames = 8;      // frames queued for a viewer before old ones are dropped
+};
+
+class DanceServiceImpl final : public dance::v1::DanceService::CallbackService {
+ public:
+  DanceServiceImpl(SessionHub* hub, ServerMetrics* metrics, ServiceOptions options);
+
+  grpc::ServerBidiReactor<dance::v1::PerformRequest, dance::v1::DanceUpdate>* Perform(
+      grpc::CallbackServerContext* context) override;
+  grpc::ServerWriteReactor<dance::v1::DanceUpdate>* Watch(grpc::CallbackServerContext* context,
+                                                          const dance::v1::WatchRequest* request) override;
+  grpc::ServerUnaryReactor* ListSessions(grpc::CallbackServerContext* context,
+                                         const dance::v1::ListSessionsRequest* request,
+                                         dance::v1::ListSessionsResponse* response) override;
+  grpc::ServerUnaryReactor* GetModelInfo(grpc::CallbackServerContext* context,
+                                         const dance::v1::GetModelInfoRequest* request,
+                                         dance::v1::ModelInfo* response) override;
+
+  // OK, or UNAUTHENTICATED when a token is configured and the call lacks "authorization: Bearer <token>".
+  absl::Status CheckAuth(const grpc::CallbackServerContext& context) const;
+
+  SessionHub* hub() const { return hub_; }
+  ServerMetrics* metrics() const { return metrics_; }
+  const ServiceOptions& options() const { return options_; }
+
+ private:
+  SessionHub* const hub_;
+  ServerMetrics* const metrics_;
+  const ServiceOptions options_;
+};
+
+}  // namespace dance::server
+
+#endif  // DANCE_SERVER_DANCE_SERVICE_H_

@@ -1,0 +1,103 @@
+// The server's view of the engine: a narrow port over dance::engine::Session / StepBatch.
+//
+// The server never includes engine headers outside engine_backend.cc. Everything it needs from the engine
+// is here: open a stream, push audio, ask how many steps are ready, advance many streams in one batched
+// step, collect pose frames. The real implementation (LoadEngineBackend) wraps engine/runtime/session.h;
+// unit tests of the scheduler may supply a labelled test double.
+//
+// Usage:
+//   ASSIGN_OR_RETURN(std::unique_ptr<EngineBackend> backend, LoadEngineBackend("models/test-tiny.dncw"));
+//   ASSIGN_OR_RETURN(std::unique_ptr<EngineStream> s, backend->Open(config));
+//   s->PushAudio(samples); while (s->StepsReady() > 0) backend->StepBatch({s.get()}); s->PopFrames(&out);
+//
+// Thread safety: EngineBackend is immutable after creation and safe to share across threads (Open and
+// StepBatch may run concurrently on disjoint streams). An EngineStream has one owner thread at a time.
+#ifndef DANCE_SERVER_ENGINE_PORT_H_
+#define DANCE_SERVER_ENGINE_PORT_H_
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "absl/types/span.h"
+
+namespace dance::server {
+
+inline constexpr int kNumJoints = 24;
+
+struct SamplingConfig {
+  float temperature = 1.0f;  // 0 = greedy
+  int top_k = 0;             // 0 = off
+  float top_p = 1.0f;        // 1 = off
+  float guidance = 1.0f;     // 1 = off
+};
+
+using StyleMix = std::vector<std::pair<std::string, float>>;  // (style name, weight >= 0)
+
+struct StreamConfig {
+  int sample_rate_hz = 24000;  // input rate, Hz
+  int channels = 1;            // interleaved input channels
+  StyleMix style;              // empty = "none"
+  uint64_t seed = 0;
+  SamplingConfig sampling;
+};
+
+// What the loaded model tells clients (SessionInfo / ModelInfo).
+struct ModelDescription {
+  std::string model_id;
+  double latency_ms = 0.0;        // declared algorithmic latency
+  double fps = 30.0;
+  int samples_per_step = 3200;    // at 24 kHz
+  int frames_per_step = 4;
+  std::vector<std::string> joint_names;  // kNumJoints
+  std::vector<int> parents;              // kNumJoints, -1 = root
+  std::vector<float> rest_offsets;       // kNumJoints * 3, metres
+  std::vector<std::string> styles;
+};
+
+struct FrameData {
+  int64_t index = 0;                           // 30 fps frame index since stream start
+  double time_s = 0.0;                         // input timeline, seconds
+  std::array<float, kNumJoints * 3> positions; // metres, Y up
+  std::array<float, kNumJoints * 4> rotations; // (w, x, y, z) per joint
+  int upper_code = 0;
+  int lower_code = 0;
+};
+
+// One performer's engine state. Not thread-safe: one owner thread at a time.
+class EngineStream {
+ public:
+  virtual ~EngineStream() = default;
+  virtual absl::Status PushAudio(absl::Span<const float> interleaved) = 0;
+  virtual absl::Status PushAudioInt16(absl::Span<const int16_t> interleaved) = 0;
+  virtual void EndOfAudio() = 0;
+  // Steps whose audio has fully arrived and that have not been taken yet.
+  virtual int StepsReady() const = 0;
+  // Appends the frames produced so far (in order) to *out.
+  virtual void PopFrames(std::vector<FrameData>* out) = 0;
+  virtual absl::Status SetStyle(const StyleMix& style) = 0;
+  virtual absl::Status SetSampling(const SamplingConfig& sampling) = 0;
+};
+
+class EngineBackend {
+ public:
+  virtual ~EngineBackend() = default;
+  virtual const ModelDescription& Describe() const = 0;
+  // INVALID_ARGUMENT for a bad config (sample rate, channels, unknown style).
+  virtual absl::StatusOr<std::unique_ptr<EngineStream>> Open(const StreamConfig& config) const = 0;
+  // Advances each stream (all created by this backend, each with StepsReady() > 0) by one step, in one
+  // pass over the weights.
+  virtual absl::Status StepBatch(absl::Span<EngineStream* const> streams) const = 0;
+};
+
+// Loads a .dncw model with the real engine. Errors: whatever the engine's loader returns.
+absl::StatusOr<std::unique_ptr<EngineBackend>> LoadEngineBackend(const std::string& model_path);
+
+}  // namespace dance::server
+
+#endif  // DANCE_SERVER_ENGINE_PORT_H_

@@ -1,0 +1,398 @@
+#include "server/live_session.h"
+
+#include <algorithm>
+#include <cstring>
+#include <utility>
+
+#include "absl/strings/str_cat.h"
+
+namespace dance::server {
+namespace {
+
+int BytesPerSample(PcmFormat f) { return f == PcmFormat::kF32Le ? 4 : 2; }
+
+int64_t UnixMicros(absl::Time t) { return absl::ToUnixMicros(t); }
+
+}  // namespace
+
+void FillSkeleton(const ModelDescription& model, dance::v1::Skeleton* out) {
+  for (const std::string& n : model.joint_names) out->add_joint_names(n);
+  for (int p : model.parents) out->add_parents(p);
+  for (float v : model.rest_offsets) out->add_rest_offsets(v);
+}
+
+LiveSession::LiveSession(SessionSettings settings, std::unique_ptr<EngineStream> stream,
+                         const ModelDescription& model, ServerMetrics* metrics, absl::Time now)
+    : settings_(std::move(settings)),
+      stream_(std::move(stream)),
+      metrics_(metrics),
+      started_(now),
+      last_audio_(now) {
+  auto info = std::make_shared<dance::v1::DanceUpdate>();
+  dance::v1::SessionInfo* si = info->mutable_info();
+  si->set_session_id(settings_.id);
+  si->set_model_id(model.model_id);
+  si->set_latency_ms(model.latency_ms);
+  si->set_fps(model.fps);
+  FillSkeleton(model, si->mutable_skeleton());
+  for (const std::string& s : model.styles) si->add_styles(s);
+  si->set_samples_per_step(model.samples_per_step);
+  si->set_frames_per_step(model.frames_per_step);
+  info_ = std::move(info);
+  current_style_ = settings_.config.style;
+}
+
+absl::Status LiveSession::QueueAudio(int64_t sample_offset, std::string pcm, absl::Time arrival,
+                                             bool* pause_reading) {
+  *pause_reading = false;
+  const int64_t frame_bytes = int64_t{BytesPerSample(settings_.format)} * settings_.config.channels;
+  const int64_t frames = static_cast<int64_t>(pcm.size()) / frame_bytes;
+  absl::MutexLock lock(&inbox_mu_);
+  if (closed_) return absl::FailedPreconditionError("session is over");
+  if (end_queued_) return absl::InvalidArgumentError("audio after EndOfAudio");
+  if (sample_offset != next_offset_) {
+    return absl::InvalidArgumentError(absl::StrCat("audio chunk sample_offset ", sample_offset,
+                                                   " but ", next_offset_, " sample frames were sent before it"));
+  }
+  next_offset_ += frames;
+  pending_samples_ += frames;
+  InboxItem item{InboxItem::Kind::kAudio};
+  item.pcm = std::move(pcm);
+  item.end_sample = next_offset_;
+  item.arrival = arrival;
+  inbox_.push_back(std::move(item));
+  if (pending_samples_ > settings_.max_pending_samples) {
+    reader_paused_ = true;
+    *pause_reading = true;
+  }
+  return absl::OkStatus();
+}
+
+absl::Status LiveSession::EnqueueAudio(int64_t sample_offset, std::string pcm, absl::Time arrival,
+                                       bool* pause_reading) {
+  absl::Status s = QueueAudio(sample_offset, std::move(pcm), arrival, pause_reading);
+  if (s.ok() && settings_.wake) settings_.wake();
+  return s;
+}
+
+absl::Status LiveSession::QueueControl(std::optional<StyleMix> style,
+                                               std::optional<SamplingConfig> sampling) {
+  absl::MutexLock lock(&inbox_mu_);
+  if (closed_) return absl::FailedPreconditionError("session is over");
+  if (style) current_style_ = style;
+  InboxItem item{InboxItem::Kind::kControl};
+  item.style = std::move(style);
+  item.sampling = sampling;
+  inbox_.push_back(std::move(item));
+  return absl::OkStatus();
+}
+
+absl::Status LiveSession::EnqueueControl(std::optional<StyleMix> style, std::optional<SamplingConfig> sampling) {
+  absl::Status s = QueueControl(std::move(style), sampling);
+  if (s.ok() && settings_.wake) settings_.wake();
+  return s;
+}
+
+absl::Status LiveSession::QueueEnd(absl::Time arrival) {
+  absl::MutexLock lock(&inbox_mu_);
+  if (closed_) return absl::FailedPreconditionError("session is over");
+  if (end_queued_) return absl::InvalidArgumentError("EndOfAudio sent twice");
+  end_queued_ = true;
+  InboxItem item{InboxItem::Kind::kEnd};
+  item.end_sample = next_offset_;
+  item.arrival = arrival;
+  inbox_.push_back(std::move(item));
+  return absl::OkStatus();
+}
+
+absl::Status LiveSession::EnqueueEnd(absl::Time arrival) {
+  absl::Status s = QueueEnd(arrival);
+  if (s.ok() && settings_.wake) settings_.wake();
+  return s;
+}
+
+void LiveSession::Fail(const absl::Status& status) {
+  {
+    absl::MutexLock lock(&inbox_mu_);
+    if (failure_ || closed_) return;
+    failure_ = status.ok() ? absl::InternalError("Fail(OK)") : status;
+  }
+  if (settings_.wake) settings_.wake();
+}
+
+void LiveSession::SetReadResumer(std::function<void()> resumer) {
+  absl::MutexLock lock(&inbox_mu_);
+  resumer_ = std::move(resumer);
+}
+
+bool LiveSession::has_pending_work() const {
+  absl::MutexLock lock(&inbox_mu_);
+  return !inbox_.empty() || failure_.has_value();
+}
+
+void LiveSession::AttachPerformer(std::shared_ptr<FrameSink> sink) {
+  sink->Deliver(info_);
+  absl::MutexLock lock(&sinks_mu_);
+  performer_ = std::move(sink);
+}
+
+absl::Status LiveSession::AddViewer(std::shared_ptr<FrameSink> sink) {
+  absl::MutexLock lock(&sinks_mu_);
+  if (sinks_closed_) return absl::NotFoundError(absl::StrCat("session ", settings_.id, " has ended"));
+  if (static_cast<int>(viewers_.size()) >= settings_.max_viewers) {
+    return absl::ResourceExhaustedError(
+        absl::StrCat("session ", settings_.id, " already has ", viewers_.size(), " viewers"));
+  }
+  sink->Deliver(info_);  // before it can see any frame: frames are published under this lock's snapshot
+  viewers_.push_back(std::move(sink));
+  return absl::OkStatus();
+}
+
+void LiveSession::RemoveViewer(const FrameSink* sink) {
+  absl::MutexLock lock(&sinks_mu_);
+  viewers_.erase(std::remove_if(viewers_.begin(), viewers_.end(),
+                                [sink](const std::shared_ptr<FrameSink>& v) { return v.get() == sink; }),
+                 viewers_.end());
+}
+
+int LiveSession::viewer_count() const {
+  absl::MutexLock lock(&sinks_mu_);
+  return static_cast<int>(viewers_.size());
+}
+
+dance::v1::SessionSummary LiveSession::Summary() const {
+  dance::v1::SessionSummary s;
+  s.set_session_id(settings_.id);
+  s.set_client_name(settings_.client_name);
+  s.set_started_unix_ms(absl::ToUnixMillis(started_));
+  s.set_frames(frames_out_.load(std::memory_order_relaxed));
+  s.set_audio_ms(1000.0 * static_cast<double>(samples_in_.load(std::memory_order_relaxed)) /
+                 settings_.config.sample_rate_hz);
+  s.set_viewers(viewer_count());
+  absl::MutexLock lock(&inbox_mu_);
+  if (current_style_) {
+    for (const auto& [name, weight] : *current_style_) {
+      dance::v1::StyleWeight* w = s.add_style();
+      w->set_name(name);
+      w->set_weight(weight);
+    }
+  }
+  return s;
+}
+
+absl::Status LiveSession::PushPcm(const InboxItem& item) {
+  const size_t n = item.pcm.size() / BytesPerSample(settings_.format);
+  // Copy out of the byte string: it has no float alignment guarantee.
+  if (settings_.format == PcmFormat::kF32Le) {
+    f32_buf_.resize(n);
+    std::memcpy(f32_buf_.data(), item.pcm.data(), n * sizeof(float));
+    return stream_->PushAudio(f32_buf_);
+  }
+  s16_buf_.resize(n);
+  std::memcpy(s16_buf_.data(), item.pcm.data(), n * sizeof(int16_t));
+  return stream_->PushAudioInt16(s16_buf_);
+}
+
+void LiveSession::RecordTrigger(int64_t end_sample, absl::Time arrival) {
+  const int64_t total = steps_done_ + stream_->StepsReady();
+  if (total > steps_marked_) {
+    triggers_.push_back({total, end_sample, arrival});
+    steps_marked_ = total;
+  }
+}
+
+absl::Status LiveSession::Drain(absl::Time now) {
+  std::vector<InboxItem> items;
+  std::function<void()> resume;
+  {
+    absl::MutexLock lock(&inbox_mu_);
+    items.swap(inbox_);
+    pending_samples_ = 0;
+    if (reader_paused_) {
+      reader_paused_ = false;
+      resume = resumer_;
+    }
+  }
+  for (InboxItem& item : items) {
+    switch (item.kind) {
+      case InboxItem::Kind::kAudio: {
+        absl::Status s = PushPcm(item);
+        if (!s.ok()) return s;
+        const int64_t frames = static_cast<int64_t>(item.pcm.size()) /
+                               (BytesPerSample(settings_.format) * settings_.config.channels);
+        samples_in_.fetch_add(frames, std::memory_order_relaxed);
+        metrics_->audio_samples_total.fetch_add(frames, std::memory_order_relaxed);
+        last_audio_ = item.arrival;
+        RecordTrigger(item.end_sample, item.arrival);
+        break;
+      }
+      case InboxItem::Kind::kControl: {
+        absl::Status s;
+        if (item.style) s.Update(stream_->SetStyle(*item.style));
+        if (item.sampling) s.Update(stream_->SetSampling(*item.sampling));
+        if (s.ok()) {
+          PushEvent(dance::v1::Event::KIND_CONTROL_APPLIED, "control applied");
+        } else {
+          PushEvent(dance::v1::Event::KIND_WARNING, absl::StrCat("control ignored: ", s.message()));
+        }
+        break;
+      }
+      case InboxItem::Kind::kEnd:
+        stream_->EndOfAudio();
+        end_drained_ = true;
+        RecordTrigger(item.end_sample, item.arrival);
+        break;
+    }
+  }
+  if (resume) resume();
+  return absl::OkStatus();
+}
+
+absl::Status LiveSession::CheckHealth(absl::Time now) {
+  {
+    absl::MutexLock lock(&inbox_mu_);
+    if (failure_) return *failure_;
+  }
+  if (!end_drained_ && now - last_audio_ > settings_.idle_timeout) {
+    return absl::DeadlineExceededError(
+        absl::StrCat("no audio for ", absl::FormatDuration(settings_.idle_timeout), " (idle timeout)"));
+  }
+  if (backlogged_since_ && now - *backlogged_since_ > settings_.stall_timeout) {
+    return absl::ResourceExhaustedError(absl::StrCat("client is not reading its frames (stalled for ",
+                                                     absl::FormatDuration(now - *backlogged_since_), ")"));
+  }
+  if (now - started_ > settings_.max_duration) {
+    return absl::DeadlineExceededError(
+        absl::StrCat("session longer than ", absl::FormatDuration(settings_.max_duration)));
+  }
+  return absl::OkStatus();
+}
+
+void LiveSession::PushEvent(dance::v1::Event::Kind kind, const std::string& message) {
+  auto u = std::make_shared<dance::v1::DanceUpdate>();
+  dance::v1::Event* e = u->mutable_event();
+  e->set_kind(kind);
+  e->set_frame_index(frames_out_.load(std::memory_order_relaxed));
+  e->set_time_ms(1000.0 * static_cast<double>(samples_in_.load(std::memory_order_relaxed)) /
+                 settings_.config.sample_rate_hz);
+  e->set_message(message);
+  PublishOne(u);
+}
+
+void LiveSession::AfterStep(absl::Time now) {
+  ++steps_done_;
+  PublishFrames(now);
+}
+
+void LiveSession::PublishFrames(absl::Time now) {
+  while (!triggers_.empty() && triggers_.front().steps_total < steps_done_) triggers_.pop_front();
+  int64_t trigger_end = 0;
+  absl::Time trigger_arrival = now;
+  if (!triggers_.empty()) {
+    trigger_end = triggers_.front().end_sample;
+    trigger_arrival = triggers_.front().arrival;
+  }
+  frame_buf_.clear();
+  stream_->PopFrames(&frame_buf_);
+  if (frame_buf_.empty()) return;
+  metrics_->frame_latency.Observe(absl::ToDoubleSeconds(now - trigger_arrival));
+  std::vector<UpdatePtr> full;
+  std::vector<UpdatePtr> stripped;
+  full.reserve(frame_buf_.size());
+  for (const FrameData& f : frame_buf_) {
+    auto u = std::make_shared<dance::v1::DanceUpdate>();
+    dance::v1::PoseFrame* pf = u->mutable_frame();
+    pf->set_index(f.index);
+    pf->set_time_ms(f.time_s * 1000.0);
+    pf->mutable_positions()->Add(f.positions.begin(), f.positions.end());
+    pf->set_upper_code(f.upper_code);
+    pf->set_lower_code(f.lower_code);
+    pf->set_trigger_sample_end(trigger_end);
+    pf->set_server_time_us(UnixMicros(now));
+    auto bare = std::make_shared<dance::v1::DanceUpdate>(*u);
+    pf->mutable_rotations()->Add(f.rotations.begin(), f.rotations.end());
+    full.push_back(std::move(u));
+    stripped.push_back(std::move(bare));
+  }
+  frames_out_.fetch_add(static_cast<int64_t>(frame_buf_.size()), std::memory_order_relaxed);
+  metrics_->frames_total.fetch_add(frame_buf_.size(), std::memory_order_relaxed);
+  Publish(std::move(full), stripped);
+}
+
+void LiveSession::Publish(std::vector<UpdatePtr> updates, const std::vector<UpdatePtr>& stripped) {
+  std::shared_ptr<FrameSink> performer;
+  std::vector<std::shared_ptr<FrameSink>> viewers;
+  {
+    absl::MutexLock lock(&sinks_mu_);
+    performer = performer_;
+    viewers = viewers_;
+  }
+  auto send = [&](FrameSink* sink) {
+    const std::vector<UpdatePtr>& list = sink->WantsRotations() ? updates : stripped;
+    for (const UpdatePtr& u : list) sink->Deliver(u);
+  };
+  if (performer) send(performer.get());
+  for (const auto& v : viewers) send(v.get());
+}
+
+void LiveSession::PublishOne(const UpdatePtr& update) {
+  std::vector<UpdatePtr> one{update};
+  Publish(one, one);
+}
+
+bool LiveSession::OutputBacklogged(absl::Time now) {
+  size_t backlog = 0;
+  {
+    absl::MutexLock lock(&sinks_mu_);
+    if (performer_ != nullptr) backlog = performer_->Backlog();
+  }
+  if (backlog <= settings_.output_soft_limit) {
+    backlogged_since_.reset();
+    return false;
+  }
+  if (!backlogged_since_) backlogged_since_ = now;
+  return true;
+}
+
+bool LiveSession::ReadyToComplete() const { return end_drained_ && stream_->StepsReady() == 0; }
+
+void LiveSession::Complete(const absl::Status& status) {
+  if (completed_) return;
+  completed_ = true;
+  {
+    absl::MutexLock lock(&inbox_mu_);
+    closed_ = true;
+    inbox_.clear();
+    resumer_ = nullptr;
+  }
+  if (status.ok()) {
+    PublishFrames(absl::Now());  // the engine may flush a tail on EndOfAudio
+    auto u = std::make_shared<dance::v1::DanceUpdate>();
+    dance::v1::StreamEnd* e = u->mutable_end();
+    e->set_frames(frames_out_.load());
+    e->set_audio_ms(1000.0 * static_cast<double>(samples_in_.load()) / settings_.config.sample_rate_hz);
+    e->set_reason("end_of_audio");
+    PublishOne(u);
+  }
+  std::shared_ptr<FrameSink> performer;
+  std::vector<std::shared_ptr<FrameSink>> viewers;
+  {
+    absl::MutexLock lock(&sinks_mu_);
+    sinks_closed_ = true;
+    performer = std::move(performer_);
+    viewers.swap(viewers_);
+  }
+  if (performer) performer->Close(status);
+  if (!status.ok() && !viewers.empty()) {
+    // Viewers did nothing wrong: they see a normal end that says the session closed.
+    auto u = std::make_shared<dance::v1::DanceUpdate>();
+    dance::v1::StreamEnd* e = u->mutable_end();
+    e->set_frames(frames_out_.load());
+    e->set_audio_ms(1000.0 * static_cast<double>(samples_in_.load()) / settings_.config.sample_rate_hz);
+    e->set_reason("session_closed");
+    for (const auto& v : viewers) v->Deliver(u);
+  }
+  for (const auto& v : viewers) v->Close(absl::OkStatus());
+}
+
+}  // namespace dance::server

@@ -1,0 +1,177 @@
+// LiveSession: one performer's stream inside the server: the engine stream, the inbox fed by the network
+// side, and the fan-out of updates to the performer and its viewers.
+//
+// Two sides, two threads:
+//   network side (gRPC reactors, WebSocket threads): EnqueueAudio / EnqueueControl / EnqueueEnd / Fail,
+//     AttachPerformer / AddViewer / RemoveViewer, Summary. These only take the session's mutexes briefly.
+//   scheduler side (exactly one scheduler thread owns the session): Drain, CheckTimeouts, StepsReady,
+//     engine_stream, AfterStep, ReadyToComplete, Complete. Only this thread touches the engine stream.
+// A session is shared (std::shared_ptr) by the hub's registry, its scheduler and the network handlers; it
+// ends exactly once, in Complete(), called by its scheduler.
+//
+// Flow control: EnqueueAudio reports when the inbox holds more than `max_pending_samples`; the network side
+// then stops reading and the scheduler calls the resumer registered with SetReadResumer after draining.
+#ifndef DANCE_SERVER_LIVE_SESSION_H_
+#define DANCE_SERVER_LIVE_SESSION_H_
+
+#include <atomic>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "absl/base/thread_annotations.h"
+#include "absl/status/status.h"
+#include "absl/synchronization/mutex.h"
+#include "absl/time/time.h"
+#include "dance/v1/dance.pb.h"
+#include "server/engine_port.h"
+#include "server/frame_sink.h"
+#include "server/metrics.h"
+
+namespace dance::server {
+
+enum class PcmFormat { kF32Le, kS16Le };
+
+struct SessionSettings {
+  std::string id;
+  std::string client_name;
+  StreamConfig config;
+  PcmFormat format = PcmFormat::kF32Le;
+  int64_t max_pending_samples = 24000 * 10;  // inbox bound before reads pause, input sample frames
+  int max_viewers = 64;
+  absl::Duration idle_timeout = absl::Seconds(30);
+  absl::Duration max_duration = absl::Hours(4);
+  // The performer's queued updates above which the session is not stepped (flow control for clients that
+  // stream faster than real time), and how long it may stay there before the session fails with
+  // RESOURCE_EXHAUSTED (a client that stopped reading).
+  size_t output_soft_limit = 64;
+  absl::Duration stall_timeout = absl::Seconds(10);
+  // Called (without locks held) after anything is queued, to wake the owning scheduler. May be empty.
+  std::function<void()> wake;
+};
+
+class LiveSession {
+ public:
+  LiveSession(SessionSettings settings, std::unique_ptr<EngineStream> stream, const ModelDescription& model,
+              ServerMetrics* metrics, absl::Time now);
+  LiveSession(const LiveSession&) = delete;
+  LiveSession& operator=(const LiveSession&) = delete;
+
+  const std::string& id() const { return settings_.id; }
+  const SessionSettings& settings() const { return settings_; }
+  // The SessionInfo update every sink receives first.
+  const UpdatePtr& info() const { return info_; }
+
+  // ---- network side (any thread) ----
+  // Queues one chunk of raw PCM (whole sample frames, already size-checked). INVALID_ARGUMENT if the offset
+  // is not the next expected one or audio follows EndOfAudio; FAILED_PRECONDITION if the session is over.
+  // *pause_reading is set when the inbox is over its bound (then wait for the resumer).
+  absl::Status EnqueueAudio(int64_t sample_offset, std::string pcm, absl::Time arrival, bool* pause_reading);
+  absl::Status EnqueueControl(std::optional<StyleMix> style, std::optional<SamplingConfig> sampling);
+  absl::Status EnqueueEnd(absl::Time arrival);
+  // Ends the session with `status` (not OK) at the scheduler's next pass. First failure wins.
+  void Fail(const absl::Status& status);
+  void SetReadResumer(std::function<void()> resumer);
+  // The performer's sink; receives info immediately.
+  void AttachPerformer(std::shared_ptr<FrameSink> sink);
+  // NOT_FOUND if the session is over, RESOURCE_EXHAUSTED at max_viewers. Delivers info immediately.
+  absl::Status AddViewer(std::shared_ptr<FrameSink> sink);
+  void RemoveViewer(const FrameSink* sink);
+  int viewer_count() const;
+  dance::v1::SessionSummary Summary() const;
+  bool has_pending_work() const;
+
+  // ---- scheduler side (the owning scheduler thread only) ----
+  // Feeds queued audio/controls/end into the engine. An error ends the session (caller calls Complete).
+  absl::Status Drain(absl::Time now);
+  // DEADLINE_EXCEEDED after idle_timeout without audio or max_duration in total; also returns a pending
+  // Fail() status.
+  absl::Status CheckHealth(absl::Time now);
+  int StepsReady() const { return stream_->StepsReady(); }
+  // True while the performer's backlog is above output_soft_limit (then do not step this session).
+  bool OutputBacklogged(absl::Time now);
+  EngineStream* engine_stream() { return stream_.get(); }
+  // After the engine stepped this session once: collect frames, stamp them, fan them out.
+  void AfterStep(absl::Time now);
+  // EndOfAudio was drained and no step remains.
+  bool ReadyToComplete() const;
+  // Publishes StreamEnd (if OK) and closes every sink. Idempotent.
+  void Complete(const absl::Status& status);
+  bool completed() const { return completed_; }
+
+ private:
+  struct InboxItem {
+    enum class Kind { kAudio, kControl, kEnd } kind;
+    std::string pcm;
+    int64_t end_sample = 0;
+    absl::Time arrival;
+    std::optional<StyleMix> style;
+    std::optional<SamplingConfig> sampling;
+  };
+  // Which chunk made the engine's step count reach `steps_total`.
+  struct TriggerMark {
+    int64_t steps_total;
+    int64_t end_sample;
+    absl::Time arrival;
+  };
+
+  absl::Status QueueAudio(int64_t sample_offset, std::string pcm, absl::Time arrival,
+                                  bool* pause_reading);
+  absl::Status QueueControl(std::optional<StyleMix> style, std::optional<SamplingConfig> sampling);
+  absl::Status QueueEnd(absl::Time arrival);
+  void PublishFrames(absl::Time now);
+  void Publish(std::vector<UpdatePtr> updates, const std::vector<UpdatePtr>& stripped);
+  void PublishOne(const UpdatePtr& update);
+  void PushEvent(dance::v1::Event::Kind kind, const std::string& message);
+  absl::Status PushPcm(const InboxItem& item);
+  void RecordTrigger(int64_t end_sample, absl::Time arrival);
+
+  const SessionSettings settings_;
+  const std::unique_ptr<EngineStream> stream_;
+  ServerMetrics* const metrics_;
+  const absl::Time started_;
+  UpdatePtr info_;
+
+  mutable absl::Mutex inbox_mu_;
+  std::vector<InboxItem> inbox_ ABSL_GUARDED_BY(inbox_mu_);
+  int64_t pending_samples_ ABSL_GUARDED_BY(inbox_mu_) = 0;
+  int64_t next_offset_ ABSL_GUARDED_BY(inbox_mu_) = 0;
+  bool end_queued_ ABSL_GUARDED_BY(inbox_mu_) = false;
+  bool reader_paused_ ABSL_GUARDED_BY(inbox_mu_) = false;
+  std::function<void()> resumer_ ABSL_GUARDED_BY(inbox_mu_);
+  std::optional<absl::Status> failure_ ABSL_GUARDED_BY(inbox_mu_);
+  std::optional<StyleMix> current_style_ ABSL_GUARDED_BY(inbox_mu_);
+  bool closed_ ABSL_GUARDED_BY(inbox_mu_) = false;
+
+  mutable absl::Mutex sinks_mu_;
+  std::shared_ptr<FrameSink> performer_ ABSL_GUARDED_BY(sinks_mu_);
+  std::vector<std::shared_ptr<FrameSink>> viewers_ ABSL_GUARDED_BY(sinks_mu_);
+  bool sinks_closed_ ABSL_GUARDED_BY(sinks_mu_) = false;
+
+  // Progress counters, written by the scheduler, read by Summary (relaxed atomics).
+  std::atomic<int64_t> frames_out_{0};
+  std::atomic<int64_t> samples_in_{0};
+
+  // Scheduler-thread state.
+  std::deque<TriggerMark> triggers_;
+  int64_t steps_done_ = 0;
+  int64_t steps_marked_ = 0;
+  bool end_drained_ = false;
+  absl::Time last_audio_;
+  std::optional<absl::Time> backlogged_since_;
+  bool completed_ = false;
+  std::vector<float> f32_buf_;
+  std::vector<int16_t> s16_buf_;
+  std::vector<FrameData> frame_buf_;
+};
+
+// Builds the SessionInfo for a model (shared by GetModelInfo and the WebSocket "info" message).
+void FillSkeleton(const ModelDescription& model, dance::v1::Skeleton* out);
+
+}  // namespace dance::server
+
+#endif  // DANCE_SERVER_LIVE_SESSION_H_

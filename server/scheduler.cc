@@ -1,0 +1,115 @@
+#include "server/scheduler.h"
+
+#include <algorithm>
+#include <utility>
+
+namespace dance::server {
+
+Scheduler::Scheduler(const EngineBackend* backend, ServerMetrics* metrics, SchedulerOptions options,
+                     CompletionFn on_complete)
+    : backend_(backend), metrics_(metrics), options_(options), on_complete_(std::move(on_complete)) {}
+
+Scheduler::~Scheduler() { Stop(); }
+
+void Scheduler::Start() { thread_ = std::thread([this] { Run(); }); }
+
+void Scheduler::Stop() {
+  {
+    absl::MutexLock lock(&mu_);
+    stop_ = true;
+  }
+  if (thread_.joinable()) thread_.join();
+  // Whatever is left (thread stopped, or never started) ends here, on the caller's thread.
+  std::vector<std::shared_ptr<LiveSession>> left;
+  {
+    absl::MutexLock lock(&mu_);
+    left.swap(incoming_);
+  }
+  for (auto& s : sessions_) left.push_back(std::move(s));
+  sessions_.clear();
+  for (auto& s : left) CompleteSession(*s, absl::UnavailableError("server shutting down"));
+}
+
+void Scheduler::Add(std::shared_ptr<LiveSession> session) {
+  size_.fetch_add(1, std::memory_order_relaxed);
+  absl::MutexLock lock(&mu_);
+  incoming_.push_back(std::move(session));
+  wake_ = true;
+}
+
+void Scheduler::Wake() {
+  absl::MutexLock lock(&mu_);
+  wake_ = true;
+}
+
+void Scheduler::CompleteSession(LiveSession& session, const absl::Status& status) {
+  if (session.completed()) return;
+  session.Complete(status);
+  size_.fetch_sub(1, std::memory_order_relaxed);
+  on_complete_(session, status);
+}
+
+void Scheduler::Run() {
+  while (true) {
+    {
+      absl::MutexLock lock(&mu_);
+      auto due = [this]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) { return wake_ || stop_; };
+      mu_.AwaitWithTimeout(absl::Condition(&due), options_.poll);
+      if (stop_) return;
+      wake_ = false;
+      for (auto& s : incoming_) sessions_.push_back(std::move(s));
+      incoming_.clear();
+    }
+    Pass();
+  }
+}
+
+void Scheduler::Pass() {
+  absl::Time now = absl::Now();
+  for (auto& s : sessions_) {
+    absl::Status st = s->CheckHealth(now);
+    if (st.ok()) st = s->Drain(now);
+    if (!st.ok()) CompleteSession(*s, st);
+  }
+  // Step rounds: one step per ready session per round.
+  while (true) {
+    batch_.clear();
+    streams_.clear();
+    for (auto& s : sessions_) {
+      if (s->completed() || s->StepsReady() <= 0 || s->OutputBacklogged(now)) continue;
+      batch_.push_back(s.get());
+      streams_.push_back(s->engine_stream());
+      if (static_cast<int>(batch_.size()) >= options_.max_batch) break;
+    }
+    if (batch_.empty()) break;
+    const absl::Time t0 = absl::Now();
+    absl::Status st = backend_->StepBatch(streams_);
+    now = absl::Now();
+    metrics_->step_latency.Observe(absl::ToDoubleSeconds(now - t0));
+    metrics_->batch_size.Observe(static_cast<double>(batch_.size()));
+    metrics_->batches_total.fetch_add(1, std::memory_order_relaxed);
+    metrics_->steps_total.fetch_add(batch_.size(), std::memory_order_relaxed);
+    for (LiveSession* s : batch_) {
+      if (st.ok()) {
+        s->AfterStep(now);
+      } else {
+        CompleteSession(*s, st);
+      }
+    }
+    // New audio that arrived during the step joins the next round.
+    for (auto& s : sessions_) {
+      if (s->completed() || !s->has_pending_work()) continue;
+      absl::Status hs = s->CheckHealth(now);
+      if (hs.ok()) hs = s->Drain(now);
+      if (!hs.ok()) CompleteSession(*s, hs);
+    }
+  }
+  for (auto& s : sessions_) {
+    if (!s->completed() && s->ReadyToComplete()) CompleteSession(*s, absl::OkStatus());
+  }
+  sessions_.erase(std::remove_if(sessions_.begin(), sessions_.end(),
+                                 [](const std::shared_ptr<LiveSession>& s) { return s->completed(); }),
+                  sessions_.end());
+}
+
+}  // namespace dance::server

@@ -1,0 +1,210 @@
+// StreamWriter: the FrameSink of one gRPC streaming call. It serialises every operation on the call
+// (write, read, finish) so that the callback API's rules hold however many threads deliver updates:
+//   - at most one write in flight; updates wait in a queue;
+//   - Finish is issued exactly once, never while a write is in flight or another thread is issuing an op;
+//   - no op is issued after Finish (so the reactor outlives every op issued through this writer).
+// No lock is held while calling into gRPC (reactions may run inline).
+//
+// Lossless mode (performers): the queue may hold `limit` updates; beyond that the call finishes with
+// RESOURCE_EXHAUSTED (the client stopped reading). Lossy mode (viewers): at most `limit` frames are queued;
+// the oldest queued frame is dropped for a new one and the next frame sent carries dropped_before.
+//
+// R must provide: void IssueWrite(const dance::v1::DanceUpdate*); void IssueRead(); void IssueFinish(grpc::Status).
+// Thread safety: all methods are thread-safe.
+#ifndef DANCE_SERVER_STREAM_WRITER_H_
+#define DANCE_SERVER_STREAM_WRITER_H_
+
+#include <atomic>
+#include <cstddef>
+#include <deque>
+#include <memory>
+#include <optional>
+#include <utility>
+
+#include <grpcpp/grpcpp.h>
+
+#include "absl/base/thread_annotations.h"
+#include "absl/status/status.h"
+#include "absl/strings/str_cat.h"
+#include "absl/synchronization/mutex.h"
+#include "server/frame_sink.h"
+#include "server/metrics.h"
+
+namespace dance::server {
+
+inline grpc::Status ToGrpcStatus(const absl::Status& s) {
+  return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));
+}
+
+template <typename R>
+class StreamWriter : public FrameSink {
+ public:
+  enum class Mode { kLossless, kLossy };
+
+  StreamWriter(R* reactor, Mode mode, size_t limit, bool wants_rotations, ServerMetrics* metrics)
+      : reactor_(reactor), mode_(mode), limit_(limit), wants_rotations_(wants_rotations), metrics_(metrics) {}
+
+  void Deliver(const UpdatePtr& update) override {
+    const dance::v1::DanceUpdate* write = nullptr;
+    bool finish = false;
+    {
+      absl::MutexLock lock(&mu_);
+      if (finish_issued_ || closing_) return;
+      if (mode_ == Mode::kLossy && update->has_frame() && queued_frames_ >= limit_) {
+        for (auto it = queue_.begin(); it != queue_.end(); ++it) {
+          if ((*it)->has_frame()) {
+            queue_.erase(it);
+            --queued_frames_;
+            ++dropped_pending_;
+            metrics_->viewer_frames_dropped_total.fetch_add(1, std::memory_order_relaxed);
+            break;
+          }
+        }
+      } else if (mode_ == Mode::kLossless && queue_.size() >= limit_) {
+        closing_ = true;
+        close_status_ = absl::ResourceExhaustedError(
+            absl::StrCat("client is not reading: ", queue_.size(), " updates queued"));
+        queue_.clear();
+        queued_frames_ = 0;
+        finish = ShouldFinishLocked();
+      }
+      if (!closing_) {
+        queue_.push_back(update);
+        if (update->has_frame()) ++queued_frames_;
+        write = StartNextLocked();
+      }
+    }
+    if (write != nullptr) IssueWriteAndExit(write);
+    if (finish) reactor_->IssueFinish(ToGrpcStatus(close_status_copy()));
+  }
+
+  void Close(const absl::Status& status) override {
+    bool finish = false;
+    {
+      absl::MutexLock lock(&mu_);
+      if (closing_ || finish_issued_) return;
+      closing_ = true;
+      close_status_ = status;
+      if (!status.ok()) {
+        queue_.clear();
+        queued_frames_ = 0;
+      }
+      finish = ShouldFinishLocked();
+    }
+    if (finish) reactor_->IssueFinish(ToGrpcStatus(close_status_copy()));
+  }
+
+  bool WantsRotations() const override { return wants_rotations_.load(std::memory_order_relaxed); }
+  // Set before the writer is attached to a session.
+  void SetWantsRotations(bool wants) { wants_rotations_.store(wants, std::memory_order_relaxed); }
+
+  size_t Backlog() const override {
+    absl::MutexLock lock(&mu_);
+    return queue_.size();
+  }
+
+  // The reactor's OnWriteDone.
+  void OnWriteDone(bool ok) {
+    const dance::v1::DanceUpdate* write = nullptr;
+    bool finish = false;
+    {
+      absl::MutexLock lock(&mu_);
+      writing_ = false;
+      current_.reset();
+      if (!ok && !closing_) {
+        closing_ = true;
+        close_status_ = absl::CancelledError("write failed: the client went away");
+        queue_.clear();
+        queued_frames_ = 0;
+      }
+      if (!closing_ || close_status_.ok()) write = StartNextLocked();
+      if (write == nullptr) finish = ShouldFinishLocked();
+    }
+    if (write != nullptr) IssueWriteAndExit(write);
+    if (finish) reactor_->IssueFinish(ToGrpcStatus(close_status_copy()));
+  }
+
+  // Issues a read on the call unless it is finished (reactor thread, or the session's read resumer).
+  void Read() {
+    {
+      absl::MutexLock lock(&mu_);
+      if (finish_issued_) return;
+      ++in_call_;
+    }
+    reactor_->IssueRead();
+    ExitCall();
+  }
+
+  bool closing() const {
+    absl::MutexLock lock(&mu_);
+    return closing_ || finish_issued_;
+  }
+
+ private:
+  const dance::v1::DanceUpdate* StartNextLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
+    if (writing_ || queue_.empty() || finish_issued_) return nullptr;
+    UpdatePtr next = std::move(queue_.front());
+    queue_.pop_front();
+    if (next->has_frame()) {
+      --queued_frames_;
+      if (dropped_pending_ > 0) {
+        auto copy = std::make_shared<dance::v1::DanceUpdate>(*next);
+        copy->mutable_frame()->set_dropped_before(dropped_pending_);
+        dropped_pending_ = 0;
+        next = std::move(copy);
+      }
+    }
+    current_ = std::move(next);
+    writing_ = true;
+    ++in_call_;
+    return current_.get();
+  }
+
+  bool ShouldFinishLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
+    if (!closing_ || writing_ || in_call_ > 0 || finish_issued_) return false;
+    if (close_status_.ok() && !queue_.empty()) return false;
+    finish_issued_ = true;
+    return true;
+  }
+
+  void IssueWriteAndExit(const dance::v1::DanceUpdate* write) {
+    reactor_->IssueWrite(write);
+    ExitCall();
+  }
+
+  void ExitCall() {
+    bool finish = false;
+    {
+      absl::MutexLock lock(&mu_);
+      --in_call_;
+      finish = ShouldFinishLocked();
+    }
+    if (finish) reactor_->IssueFinish(ToGrpcStatus(close_status_copy()));
+  }
+
+  absl::Status close_status_copy() const {
+    absl::MutexLock lock(&mu_);
+    return close_status_;
+  }
+
+  R* const reactor_;
+  const Mode mode_;
+  const size_t limit_;
+  std::atomic<bool> wants_rotations_;
+  ServerMetrics* const metrics_;
+
+  mutable absl::Mutex mu_;
+  std::deque<UpdatePtr> queue_ ABSL_GUARDED_BY(mu_);
+  size_t queued_frames_ ABSL_GUARDED_BY(mu_) = 0;
+  int64_t dropped_pending_ ABSL_GUARDED_BY(mu_) = 0;
+  UpdatePtr current_ ABSL_GUARDED_BY(mu_);
+  bool writing_ ABSL_GUARDED_BY(mu_) = false;
+  int in_call_ ABSL_GUARDED_BY(mu_) = 0;
+  bool closing_ ABSL_GUARDED_BY(mu_) = false;
+  bool finish_issued_ ABSL_GUARDED_BY(mu_) = false;
+  absl::Status close_status_ ABSL_GUARDED_BY(mu_);
+};
+
+}  // namespace dance::server
+
+#endif  // DANCE_SERVER_STREAM_WRITER_H_

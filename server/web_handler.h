@@ -1,0 +1,53 @@
+// WebHandler: the dance server's HTTP routes (docs/protocol.md section 2): static files from the web root,
+// /metrics, /api/sessions, /api/model, /healthz, and the WebSocket endpoints /ws/watch and /ws/perform.
+//
+// Each WebSocket uses its HTTP connection thread to read and one extra thread to write, so a slow browser
+// blocks only its own writer; a watcher's queue drops old frames, a performer's fails when it overflows.
+//
+// Usage:
+//   WebHandler web(&hub, &metrics, options);
+//   HttpServer http(http_options, [&web](const HttpRequest& r, HttpConnection& c) { web.Handle(r, c); });
+//
+// Thread safety: Handle is called concurrently from connection threads; it only touches thread-safe state.
+#ifndef DANCE_SERVER_WEB_HANDLER_H_
+#define DANCE_SERVER_WEB_HANDLER_H_
+
+#include <cstddef>
+#include <string>
+
+#include "server/convert.h"
+#include "server/http_server.h"
+#include "server/metrics.h"
+#include "server/session_hub.h"
+
+namespace dance::server {
+
+struct WebOptions {
+  std::string web_root;           // directory with index.html; empty or missing = a small fallback page
+  std::string auth_token;         // empty = open
+  StreamLimits limits;
+  size_t viewer_queue_frames = 8;
+  size_t performer_queue_limit = 1024;
+  size_t max_ws_message_bytes = 1 << 20;
+};
+
+class WebHandler {
+ public:
+  WebHandler(SessionHub* hub, ServerMetrics* metrics, WebOptions options);
+  void Handle(const HttpRequest& request, HttpConnection& connection);
+
+ private:
+  bool Authorized(const HttpRequest& request) const;
+  void ServeStatic(const HttpRequest& request, HttpConnection& connection);
+  bool Upgrade(const HttpRequest& request, HttpConnection& connection);
+  void WatchSocket(const HttpRequest& request, HttpConnection& connection);
+  void PerformSocket(const HttpRequest& request, HttpConnection& connection);
+
+  SessionHub* const hub_;
+  ServerMetrics* const metrics_;
+  const WebOptions options_;
+};
+
+}  // namespace dance::server
+
+#endif  // DANCE_SERVER_WEB_HANDLER_H_

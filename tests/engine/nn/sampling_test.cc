@@ -1,0 +1,77 @@
+// Seeded sampling: greedy, temperature, top-k, top-p, guidance, option validation.
+#include "engine/nn/sampling.h"
+
+#include <map>
+
+#include "gtest/gtest.h"
+
+namespace dance::engine {
+namespace {
+
+TEST(Sampling, GreedyIsArgmaxLowestIndexOnTiesAndDrawsNothing) {
+  std::mt19937_64 gen(1), untouched(1);
+  SamplerScratch scratch(5);
+  const std::vector<float> logits = {0.0f, 3.0f, -1.0f, 3.0f, 2.0f};
+  EXPECT_EQ(SampleCode(logits, {.temperature = 0.0f}, gen, scratch), 1);
+  EXPECT_EQ(gen(), untouched());
+}
+
+TEST(Sampling, SameSeedSameCodes) {
+  const std::vector<float> logits = {0.1f, 0.5f, 0.2f, 0.9f, 0.3f, 0.0f};
+  std::mt19937_64 a(42), b(42);
+  SamplerScratch sa(6), sb(6);
+  for (int i = 0; i < 100; ++i) EXPECT_EQ(SampleCode(logits, {}, a, sa), SampleCode(logits, {}, b, sb));
+}
+
+TEST(Sampling, FrequenciesFollowTheSoftmax) {
+  const std::vector<float> logits = {0.0f, std::log(3.0f)};  // probabilities 1/4, 3/4
+  std::mt19937_64 gen(7);
+  SamplerScratch scratch(2);
+  int ones = 0;
+  const int n = 20000;
+  for (int i = 0; i < n; ++i) ones += SampleCode(logits, {}, gen, scratch);
+  EXPECT_NEAR(static_cast<double>(ones) / n, 0.75, 0.015);
+}
+
+TEST(Sampling, TopKAndTopPRestrictTheCandidates) {
+  const std::vector<float> logits = {1.0f, 4.0f, 3.0f, 2.0f, 0.0f};
+  std::mt19937_64 gen(3);
+  SamplerScratch scratch(5);
+  std::map<int, int> seen;
+  for (int i = 0; i < 2000; ++i) ++seen[SampleCode(logits, {.top_k = 2}, gen, scratch)];
+  EXPECT_EQ(seen.size(), 2u);
+  EXPECT_TRUE(seen.count(1) && seen.count(2));
+  seen.clear();
+  // p = softmax: 0.64, 0.24, 0.09, ... ; top_p 0.5 keeps only the best code.
+  for (int i = 0; i < 500; ++i) ++seen[SampleCode(logits, {.top_p = 0.5f}, gen, scratch)];
+  EXPECT_EQ(seen.size(), 1u);
+  EXPECT_EQ(seen.begin()->first, 1);
+}
+
+TEST(Sampling, LowTemperatureConcentrates) {
+  const std::vector<float> logits = {1.0f, 1.5f, 0.5f};
+  std::mt19937_64 gen(9);
+  SamplerScratch scratch(3);
+  for (int i = 0; i < 200; ++i) EXPECT_EQ(SampleCode(logits, {.temperature = 0.01f}, gen, scratch), 1);
+}
+
+TEST(Sampling, GuidanceExtrapolates) {
+  const std::vector<float> uncond = {1.0f, 2.0f};
+  std::vector<float> cond = {2.0f, 2.0f};
+  ApplyGuidance(uncond, 3.0f, absl::MakeSpan(cond));
+  EXPECT_FLOAT_EQ(cond[0], 4.0f);
+  EXPECT_FLOAT_EQ(cond[1], 2.0f);
+}
+
+TEST(Sampling, ValidationNamesTheBadField) {
+  EXPECT_TRUE(ValidateSamplingOptions({}).ok());
+  EXPECT_FALSE(ValidateSamplingOptions({.temperature = -0.1f}).ok());
+  EXPECT_FALSE(ValidateSamplingOptions({.top_k = -1}).ok());
+  EXPECT_FALSE(ValidateSamplingOptions({.top_p = 0.0f}).ok());
+  EXPECT_FALSE(ValidateSamplingOptions({.top_p = 1.5f}).ok());
+  EXPECT_FALSE(ValidateSamplingOptions({.guidance = -1.0f}).ok());
+  EXPECT_NE(ValidateSamplingOptions({.temperature = -1.0f}).message().find("temperature"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace dance::engine

@@ -1,0 +1,50 @@
+// A small random-weight model written by C++ (independent of the training side's test model), so the
+// engine's unit tests can build, corrupt and vary models freely. Tensor names follow
+// docs/weights-format.md; values are seeded and deterministic.
+//
+//   TinyModelOptions opt;  opt.seed = 3;
+//   WeightsWriter w = TinyModelWriter(opt);
+//   ASSERT_TRUE(w.WriteFile(path).ok());
+#ifndef DANCE_TESTS_ENGINE_RUNTIME_TESTING_TINY_MODEL_H_
+#define DANCE_TESTS_ENGINE_RUNTIME_TESTING_TINY_MODEL_H_
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "engine/nn/weights_writer.h"
+#include "engine/runtime/model.h"
+
+namespace dance::engine::testing {
+
+struct TinyModelOptions {
+  uint64_t seed = 1;
+  int d_model = 16;
+  int n_heads = 2;
+  int n_base = 1;
+  int n_head = 1;
+  int attn_window = 4;
+  int codebook_size = 16;
+  int d_state = 4;
+  int vq_width = 8;
+  int vq_code_dim = 6;
+  int vq_n_res = 1;
+  int music_lookahead_steps = 0;
+  float scale = 0.3f;  // weight magnitude: large enough that codes vary
+};
+
+WeightsWriter TinyModelWriter(const TinyModelOptions& options);
+
+// The default training sizes (training/model/config.py): d 128, 4 heads, 2 + 2 blocks, W 32, K 512,
+// d_state 16, VQ width 128, code dim 64, 2 res blocks. For benchmarks and memory figures.
+TinyModelOptions DefaultSizeOptions();
+
+// Writes the model to a temporary file and loads it (CHECK-fails on error: test helper).
+std::shared_ptr<const Model> LoadTinyModel(const TinyModelOptions& options = {});
+
+// A deterministic test signal: clicks on a 120 BPM grid over a low tone, mono, 24 kHz.
+std::vector<float> TestAudio(double seconds, int sample_rate = 24000);
+
+}  // namespace dance::engine::testing
+
+#endif  // DANCE_TESTS_ENGINE_RUNTIME_TESTING_TINY_MODEL_H_

@@ -1,0 +1,187 @@
+// Integration: a real dance-server (real engine, tiny model) on port 0, real gRPC channels.
+#include <atomic>
+#include <thread>
+#include <vector>
+
+#include "absl/synchronization/notification.h"
+#include "absl/time/clock.h"
+#include "gtest/gtest.h"
+#include "tests/server/testing/server_harness.h"
+
+namespace dance::server::testing {
+namespace {
+
+TEST(PerformIntegration, FullSessionProducesEveryFrameInOrder) {
+  ServerHarness h;
+  auto stub = h.NewStub();
+  const std::vector<float> audio = TestSignal(3.0, 24000);
+  PerformResult r = RunPerform(stub.get(), audio, 24000, /*seed=*/7);
+  ASSERT_TRUE(r.status.ok()) << r.status.error_message();
+  EXPECT_FALSE(r.info.session_id().empty());
+  EXPECT_EQ(r.info.fps(), 30.0);
+  EXPECT_EQ(r.info.skeleton().joint_names_size(), 24);
+  EXPECT_EQ(r.info.skeleton().rest_offsets_size(), 72);
+  ASSERT_TRUE(r.got_end);
+  EXPECT_EQ(r.end.reason(), "end_of_audio");
+  ASSERT_GE(r.frames.size(), 80u);  // 3 s = 90 frames; the first period has no pose
+  EXPECT_EQ(static_cast<int64_t>(r.frames.size()), r.end.frames());
+  for (size_t i = 1; i < r.frames.size(); ++i) ASSERT_EQ(r.frames[i].index(), r.frames[i - 1].index() + 1);
+  for (const auto& f : r.frames) {
+    ASSERT_EQ(f.positions_size(), 72);
+    ASSERT_EQ(f.rotations_size(), 96);
+    EXPECT_NEAR(f.time_ms(), f.index() * 1000.0 / 30.0, 1e-6);
+    EXPECT_GT(f.trigger_sample_end(), 0);
+  }
+  EXPECT_NEAR(r.end.audio_ms(), 3000.0, 1e-6);
+}
+
+TEST(PerformIntegration, ServerDanceEqualsTheEngineRunDirectly) {
+  ServerHarness h;
+  auto stub = h.NewStub();
+  const std::vector<float> audio = TestSignal(2.5, 44100);
+  // Odd chunking on purpose: the engine is chunking-invariant, so the server's batching must be too.
+  PerformResult r = RunPerform(stub.get(), audio, 44100, /*seed=*/11, /*chunk_frames=*/1777);
+  ASSERT_TRUE(r.status.ok()) << r.status.error_message();
+  std::vector<dance::v1::PoseFrame> ref = RunEngineDirect(TinyModelPath(), audio, 44100, 11);
+  ASSERT_EQ(r.frames.size(), ref.size());
+  for (size_t i = 0; i < ref.size(); ++i) {
+    ASSERT_EQ(r.frames[i].index(), ref[i].index());
+    ASSERT_EQ(r.frames[i].upper_code(), ref[i].upper_code()) << "frame " << i;
+    ASSERT_EQ(r.frames[i].lower_code(), ref[i].lower_code()) << "frame " << i;
+    for (int k = 0; k < 72; ++k) ASSERT_EQ(r.frames[i].positions(k), ref[i].positions(k)) << "frame " << i;
+  }
+}
+
+TEST(PerformIntegration, TwentyConcurrentSessionsAllComplete) {
+  ServerHarness h;
+  const std::vector<float> audio = TestSignal(2.0, 24000);
+  std::vector<PerformResult> results(20);
+  std::vector<std::thread> threads;
+  for (int i = 0; i < 20; ++i) {
+    threads.emplace_back([&, i] {
+      auto stub = h.NewStub();
+      results[i] = RunPerform(stub.get(), audio, 24000, /*seed=*/static_cast<uint64_t>(i % 2), 2400);
+    });
+  }
+  for (auto& t : threads) t.join();
+  std::vector<dance::v1::PoseFrame> ref0 = RunEngineDirect(TinyModelPath(), audio, 24000, 0);
+  std::vector<dance::v1::PoseFrame> ref1 = RunEngineDirect(TinyModelPath(), audio, 24000, 1);
+  for (int i = 0; i < 20; ++i) {
+    ASSERT_TRUE(results[i].status.ok()) << i << ": " << results[i].status.error_message();
+    const auto& ref = i % 2 == 0 ? ref0 : ref1;
+    ASSERT_EQ(results[i].frames.size(), ref.size()) << i;
+    // Batched with 19 others, each session still gets its own dance: the same codes, and positions equal
+    // up to float rounding (a batched matrix product may round differently from a single one).
+    for (size_t f = 0; f < ref.size(); ++f) {
+      ASSERT_EQ(results[i].frames[f].upper_code(), ref[f].upper_code()) << i << "/" << f;
+      ASSERT_EQ(results[i].frames[f].lower_code(), ref[f].lower_code()) << i << "/" << f;
+      for (int k = 0; k < 72; ++k) {
+        ASSERT_NEAR(results[i].frames[f].positions(k), ref[f].positions(k), 1e-4) << i << "/" << f;
+      }
+    }
+  }
+  EXPECT_EQ(h.server().hub().active_sessions(), 0);
+  EXPECT_GT(h.server().metrics().batch_size.count(), 0u);
+}
+
+TEST(PerformIntegration, WatcherReceivesTheSameFrames) {
+  ServerHarness h([](DanceServerOptions& o) { o.service.viewer_queue_frames = 100000; });
+  auto stub = h.NewStub();
+  grpc::ClientContext ctx;
+  auto stream = stub->Perform(&ctx);
+  dance::v1::PerformRequest req;
+  req.mutable_header()->set_sample_rate_hz(24000);
+  req.mutable_header()->set_channels(1);
+  req.mutable_header()->set_sample_format(dance::v1::SAMPLE_FORMAT_F32LE);
+  ASSERT_TRUE(stream->Write(req));
+  dance::v1::DanceUpdate info;
+  ASSERT_TRUE(stream->Read(&info));
+  ASSERT_TRUE(info.has_info());
+  const std::string id = info.info().session_id();
+
+  // The watcher subscribes before any audio, so it must see every frame the performer sees.
+  std::vector<dance::v1::PoseFrame> watched;
+  bool watch_info = false, watch_end = false;
+  grpc::Status watch_status;
+  absl::Notification subscribed;
+  std::thread watcher([&] {
+    auto wstub = h.NewStub();
+    grpc::ClientContext wctx;
+    dance::v1::WatchRequest wr;
+    wr.set_session_id(id);
+    auto reader = wstub->Watch(&wctx, wr);
+    dance::v1::DanceUpdate u;
+    while (reader->Read(&u)) {
+      if (u.has_info()) {
+        watch_info = true;
+        subscribed.Notify();
+      }
+      if (u.has_frame()) watched.push_back(u.frame());
+      if (u.has_end()) watch_end = true;
+    }
+    watch_status = reader->Finish();
+    if (!subscribed.HasBeenNotified()) subscribed.Notify();
+  });
+  subscribed.WaitForNotification();
+  const std::vector<float> audio = TestSignal(2.0, 24000);
+  for (size_t off = 0; off < audio.size(); off += 2400) {
+    req.Clear();
+    req.mutable_audio()->set_sample_offset(static_cast<int64_t>(off));
+    req.mutable_audio()->set_pcm(reinterpret_cast<const char*>(audio.data() + off), 2400 * sizeof(float));
+    ASSERT_TRUE(stream->Write(req));
+  }
+  req.Clear();
+  req.mutable_end();
+  ASSERT_TRUE(stream->Write(req));
+  stream->WritesDone();
+  std::vector<dance::v1::PoseFrame> performed;
+  dance::v1::DanceUpdate u;
+  while (stream->Read(&u)) {
+    if (u.has_frame()) performed.push_back(u.frame());
+  }
+  ASSERT_TRUE(stream->Finish().ok());
+  watcher.join();
+  EXPECT_TRUE(watch_status.ok()) << watch_status.error_message();
+  EXPECT_TRUE(watch_info);
+  EXPECT_TRUE(watch_end);
+  ASSERT_EQ(watched.size(), performed.size());
+  for (size_t i = 0; i < performed.size(); ++i) {
+    EXPECT_EQ(watched[i].index(), performed[i].index());
+    EXPECT_EQ(watched[i].upper_code(), performed[i].upper_code());
+    EXPECT_EQ(watched[i].positions(5), performed[i].positions(5));
+    EXPECT_EQ(watched[i].dropped_before(), 0);
+  }
+}
+
+TEST(PerformIntegration, ListSessionsAndModelInfo) {
+  ServerHarness h([](DanceServerOptions& o) { o.hub.max_sessions = 5; });
+  auto stub = h.NewStub();
+  grpc::ClientContext ctx;
+  dance::v1::ModelInfo mi;
+  ASSERT_TRUE(stub->GetModelInfo(&ctx, {}, &mi).ok());
+  EXPECT_EQ(mi.max_sessions(), 5);
+  EXPECT_EQ(mi.skeleton().parents_size(), 24);
+  EXPECT_EQ(mi.skeleton().parents(0), -1);
+
+  grpc::ClientContext pctx;
+  auto stream = stub->Perform(&pctx);
+  dance::v1::PerformRequest req;
+  req.mutable_header()->set_sample_rate_hz(16000);
+  req.mutable_header()->set_channels(2);
+  req.mutable_header()->set_sample_format(dance::v1::SAMPLE_FORMAT_S16LE);
+  req.mutable_header()->set_client_name("lister");
+  ASSERT_TRUE(stream->Write(req));
+  dance::v1::DanceUpdate info;
+  ASSERT_TRUE(stream->Read(&info));
+  grpc::ClientContext lctx;
+  dance::v1::ListSessionsResponse list;
+  ASSERT_TRUE(stub->ListSessions(&lctx, {}, &list).ok());
+  ASSERT_EQ(list.sessions_size(), 1);
+  EXPECT_EQ(list.sessions(0).session_id(), info.info().session_id());
+  EXPECT_EQ(list.sessions(0).client_name(), "lister");
+  pctx.TryCancel();
+  stream->Finish();
+}
+
+}  // namespace
+}  // namespace dance::server::testing

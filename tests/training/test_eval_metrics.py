@@ -1,0 +1,169 @@
+"""Metric sanity: each metric separates what it should, on synthetic dances with known answers."""
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from training.data import skeleton as sk
+from training.data.skeleton import J
+from training.eval import evaluate, features, metrics, tempo
+
+SKEL = sk.load_skeleton()
+FPS = 30.0
+
+
+def _dance(seconds=30.0, period=1.0, seed=0, amp=0.25, sway=0.3):
+  """Rest pose on the floor; arms and legs swing with the given period (speed minima twice a period)."""
+  rng = np.random.default_rng(seed)
+  t = np.arange(int(seconds * FPS)) / FPS
+  rest = SKEL.rest_positions()
+  rest[:, 1] -= rest[list(sk.FOOT_JOINTS), 1].min()
+  pos = np.repeat(rest[None], len(t), axis=0)
+  phase = rng.uniform(0, 2 * np.pi)
+  for j in (J["left_wrist"], J["right_wrist"], J["left_hand"], J["right_hand"], J["left_elbow"],
+            J["right_elbow"], J["head"]):
+    pos[:, j, 2] += amp * np.sin(2 * np.pi * t / period + phase + rng.uniform(0, 0.3))
+    pos[:, j, 1] += 0.5 * amp * np.sin(4 * np.pi * t / period + phase)
+  pos[:, :, 0] += sway * np.sin(2 * np.pi * t / (4 * period) + phase)[:, None]
+  return pos
+
+
+def test_frechet_distance_basics():
+  rng = np.random.default_rng(0)
+  a = rng.normal(size=(400, 5))
+  assert metrics.frechet_distance(a, a) == pytest.approx(0.0, abs=1e-6)
+  assert metrics.frechet_distance(a, a + 2.0) == pytest.approx(20.0, rel=1e-6)
+
+
+def test_frozen_pose_scores_worse_than_real_on_fid():
+  real = [evaluate.Dance(f"r{i}", _dance(seed=i, period=0.8 + 0.05 * i)) for i in range(8)]
+  val = [evaluate.Dance(f"v{i}", _dance(seed=100 + i, period=0.8 + 0.05 * i)) for i in range(4)]
+  ev = evaluate.Evaluator(real, val)
+  frozen = [evaluate.Dance(d.name, np.repeat(d.positions[:1], len(d.positions), 0)) for d in val]
+  r, f = ev.evaluate(val), ev.evaluate(frozen)
+  assert f["fid_k"] > 5 * r["fid_k"] and f["fid_g"] > r["fid_g"]
+  assert f["div_k"] == pytest.approx(0.0) and r["div_k"] > 0.5
+  assert f["jitter"] == 0.0 and r["bone_err_mm"] < 50
+
+
+def test_bas_of_motion_made_from_beats_is_high():
+  ibi = 0.6
+  beats = np.arange(0.3, 29.0, ibi)
+  t = np.arange(int(30 * FPS)) / FPS
+  pos = np.repeat(SKEL.rest_positions()[None], len(t), axis=0)
+  # Hands move back and forth, stopping exactly on every beat: speed minima = beats.
+  x = 0.3 * np.cos(np.pi * (t - 0.3) / ibi)
+  pos[:, J["left_wrist"], 2] += x
+  pos[:, J["right_wrist"], 2] += x
+  mb = metrics.motion_beats(pos, FPS)
+  bas = metrics.beat_align_score(beats, mb)
+  chance = metrics.beat_align_chance(beats, mb)
+  assert bas > 0.9 and chance < 0.6
+  # The same motion against beats half a beat away scores low.
+  assert metrics.beat_align_score(beats + ibi / 2, mb) < 0.2
+
+
+def test_dominant_period_and_time_stretch():
+  pos = _dance(period=2.4, seconds=40, sway=0.0)
+  # A swing of period 2.4 s stops twice per period: the speed's period is 1.2 s.
+  assert tempo.dominant_period(pos) == pytest.approx(1.2, rel=0.03)
+  fast = tempo.time_stretch_motion(pos, 1.15)
+  assert tempo.dominant_period(fast, around_s=1.2) == pytest.approx(1.2 / 1.15, rel=0.03)
+  assert tempo.fit_ratio([0.85, 1.15], [1.2 / 0.85, 1.2 / 1.15], 1.2) == pytest.approx(1.0)
+  assert tempo.fit_ratio([0.85, 1.15], [1.2, 1.2], 1.2) == pytest.approx(0.0)
+
+
+@pytest.mark.skipif(shutil.which("sox") is None, reason="sox not installed")
+def test_tempo_following_with_a_generator(tmp_path):
+  wav = tmp_path / "click.wav"
+  subprocess.run(["sox", "-n", "-r", "24000", "-c", "1", str(wav), "synth", "20", "sine", "440"],
+                 check=True, capture_output=True)
+  base = _dance(period=2.0, seconds=40, sway=0.0)
+  seen = []
+
+  def follower(audio_path):
+    seen.append(audio_path)
+    f = float(audio_path.rsplit("_x", 1)[1][:-4]) if "_x" in audio_path else 1.0
+    return tempo.time_stretch_motion(base, f)
+
+  r = tempo.tempo_following(follower, wav, tmp_path)
+  assert r["ratio"] == pytest.approx(1.0, abs=0.05) and len(seen) == 3
+  r0 = tempo.tempo_following(lambda a: base, wav, tmp_path)
+  assert abs(r0["ratio"]) < 0.05
+
+
+def test_foot_skating_and_jitter():
+  planted = _dance(seconds=10)
+  planted[:, :, 0] = planted[:1, :, 0]          # no travel: feet stay put
+  sliding = planted.copy()
+  sliding[:, :, 0] += np.arange(len(sliding))[:, None] * (0.5 / FPS)   # whole body slides at 0.5 m/s
+  assert metrics.foot_skating(planted) < 0.01
+  assert metrics.foot_skating(sliding) == pytest.approx(0.5, rel=0.01)
+  noisy = planted + np.random.default_rng(0).normal(0, 0.01, planted.shape)
+  assert metrics.jitter(noisy) > 10 * metrics.jitter(planted)
+
+
+def test_bone_length_error_and_pfc():
+  pos = _dance(seconds=10)
+  stretched = pos.copy()
+  stretched[:, J["left_wrist"]] += [0.05, 0.0, 0.0]
+  proj = sk.project_bone_lengths(pos, SKEL)
+  assert metrics.bone_length_error(proj, SKEL.parents, SKEL.bone_lengths)["bone_err_max_mm"] < 1e-6
+  assert metrics.bone_length_error(sk.project_bone_lengths(stretched, SKEL), SKEL.parents,
+                                   SKEL.bone_lengths)["bone_err_max_mm"] < 1e-6
+  # Feet moving while the pelvis accelerates sideways scores worse than feet planted.
+  t = np.arange(len(pos)) / FPS
+  glide = pos.copy()
+  glide[:, :, 0] += (0.2 * np.sin(2 * np.pi * t))[:, None]
+  planted = glide.copy()
+  for j in (J["left_ankle"], J["left_foot"], J["right_ankle"], J["right_foot"]):
+    planted[:, j] = glide[:1, j]
+  assert metrics.pfc(glide) > 3 * metrics.pfc(planted)
+
+
+def test_segments_and_features_shapes():
+  pos = _dance(seconds=25)
+  segs = features.segments(pos)
+  assert [len(s) for s in segs] == [300, 300]
+  assert features.kinetic_features(segs[0]).shape == (72,)
+  g = features.geometric_features(segs[0])
+  assert g.shape == (len(features.GEOMETRIC_NAMES),) and ((g >= 0) & (g <= 1)).all()
+
+
+def test_load_dance_json(tmp_path):
+  pos = _dance(seconds=2)
+  f = tmp_path / "d.json"
+  f.write_text(json.dumps({"format": "dance-motion/v1", "fps": 30, "units": "m", "up_axis": "y",
+                           "joint_names": list(sk.JOINT_NAMES), "positions": pos.tolist(),
+                           "audio_offset_s": 1.5, "audio_path": "song.ogg"}))
+  d = evaluate.load_dance(f)
+  np.testing.assert_allclose(d.positions, pos)
+  assert d.audio_offset_s == 1.5 and d.audio_path == "song.ogg"
+  f.write_text(json.dumps({"format": "other"}))
+  with pytest.raises(ValueError):
+    evaluate.load_dance(f)
+
+
+def test_beat_phases_and_lock():
+  from training.eval.data_checks import beat_phases, phase_drift
+  beats = np.arange(0.0, 60.0, 0.5)
+  events = beats[:-1] + 0.125                          # always a quarter beat late
+  ph = beat_phases(events, beats)
+  np.testing.assert_allclose(ph, 0.25)
+  assert abs(phase_drift(events, beats)) < 1e-9
+  drifting = beats[:-1] * 1.01                         # 1 % fast against the beats: phase walks
+  assert phase_drift(drifting, beats) > 0.5
+
+
+def test_beat_lock_separates_locked_from_unlocked():
+  ibi = 0.6
+  t = np.arange(int(60 * FPS)) / FPS
+  pos = np.repeat(SKEL.rest_positions()[None], len(t), axis=0)
+  pos[:, J["left_wrist"], 2] += 0.3 * np.cos(np.pi * t / ibi)
+  d = evaluate.Dance("x", pos)
+  locked = evaluate.beat_lock(d, np.arange(0.0, 60.0, ibi))
+  other = evaluate.beat_lock(d, np.arange(0.0, 60.0, 0.71))
+  assert locked["lock_r"] > 0.9 and other["lock_r"] < 3 * other["lock_chance"]
+  assert locked["period_dev"] < 0.02

@@ -1,0 +1,72 @@
+"""The dance-features CLI on real songs: shapes, metadata, summary, chunking invariance, bad input."""
+from __future__ import annotations
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from training.features.extract import FEATURE_DIMS, PRE_DIMS, extract_features, run_cli
+
+
+@pytest.fixture(scope="module")
+def song(shared_data_dir):
+    songs = sorted(shared_data_dir.glob("tang2018/DANCE_*/audio.ogg"))
+    if not songs:
+        pytest.skip("no tang2018 songs in shared data")
+    return songs[0]
+
+
+def test_summary_and_shapes(features_cli, song, tmp_path):
+    summary = run_cli(song, tmp_path, cli=features_cli)
+    feats = np.load(tmp_path / "features.npy")
+    pre = np.load(tmp_path / "pre.npy")
+    assert feats.dtype == np.float32 and pre.dtype == np.float32
+    assert feats.shape == (summary["frames"], FEATURE_DIMS)
+    assert pre.shape == (summary["frames"], PRE_DIMS)
+    assert abs(summary["frames"] - summary["duration_s"] * 30) <= 1
+    assert np.isfinite(feats).all() and np.isfinite(pre).all()
+    assert 60 <= summary["tempo_bpm"] <= 250
+    beats = np.asarray(summary["beats_s"])
+    assert len(beats) > summary["duration_s"]  # more than one beat per second over a dance song
+    # The beat clock's step is clamped to [0.5, 1.5] x the tempo, so beats are >= 2/3 period apart (<= 250 BPM).
+    assert np.all(np.diff(beats) > 0.15)
+    meta = json.loads((tmp_path / "features.npy.json").read_text())
+    assert meta["dims"] == FEATURE_DIMS and meta["pre"]["dims"] == PRE_DIMS
+    covered = sorted((f["begin"], f["end"]) for f in meta["features"])
+    assert covered[0][0] == 0 and covered[-1][1] == FEATURE_DIMS
+    assert all(a[1] == b[0] for a, b in zip(covered, covered[1:]))
+
+
+def test_chunk_size_does_not_change_output(features_cli, song, tmp_path):
+    run_cli(song, tmp_path / "a", chunk_samples=4096, cli=features_cli)
+    run_cli(song, tmp_path / "b", chunk_samples=333, cli=features_cli)
+    for name in ("features.npy", "pre.npy"):
+        a, b = np.load(tmp_path / "a" / name), np.load(tmp_path / "b" / name)
+        assert a.shape == b.shape
+        assert np.abs(a - b).max() <= 1e-6
+
+
+def test_cache_returns_the_same_arrays(features_cli, song, tmp_path):
+    first = extract_features(song, cache_dir=tmp_path)
+    second = extract_features(song, cache_dir=tmp_path)
+    assert np.array_equal(first["features"], second["features"])
+    assert len(list(tmp_path.iterdir())) == 1
+
+
+@pytest.mark.parametrize("content,name", [(b"", "empty.wav"), (b"hello, not audio\n", "text.wav")])
+def test_bad_files_give_a_clear_error(features_cli, tmp_path, content, name):
+    path = tmp_path / name
+    path.write_bytes(content)
+    proc = subprocess.run([str(features_cli), str(path), "--summary"], capture_output=True, text=True)
+    assert proc.returncode == 1
+    assert "dance-features:" in proc.stderr and name in proc.stderr
+
+
+def test_usage_errors(features_cli):
+    proc = subprocess.run([str(features_cli)], capture_output=True, text=True)
+    assert proc.returncode == 2 and "usage:" in proc.stderr
+    proc = subprocess.run([str(features_cli), "x.wav", "--chunk-samples", "0", "--summary"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "--chunk-samples" in proc.stderr

@@ -1,0 +1,1 @@
+"""Training side of the dance project: data, models, training, export, golden fixtures, evaluation."""

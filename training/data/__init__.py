@@ -1,0 +1,1 @@
+"""Motion data: conversion to the canonical skeleton, the pose representation, the split."""

@@ -1,0 +1,1 @@
+"""Evaluation: metrics, baselines, tempo following, renderers (docs/evaluation.md)."""

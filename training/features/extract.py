@@ -1,0 +1,128 @@
+"""Runs the engine's `dance-features` CLI and caches its arrays.
+
+The C++ extractor is the only feature implementation; this module never computes features itself.
+
+    from training.features.extract import extract_features
+    feats = extract_features("song.ogg")      # dict: features (T, 108), pre (T, 128), pre_input (T, 4),
+                                              #       summary (dict from --summary)
+
+The CLI is looked up in $DANCE_BUILD_DIR/bin, then /work/main/build/bin, then the repository's build/bin.
+Results are cached under $DANCE_FEATURE_CACHE (default ~/.cache/dance-features), keyed by the audio file's
+content hash and the CLI binary's hash, so a rebuilt extractor never serves stale arrays.
+
+Command line: python -m training.features.extract AUDIO... [--out-dir DIR]
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+FEATURE_DIMS = 108
+PRE_DIMS = 128
+PRE_CHANNELS = 4
+FPS = 30.0
+
+
+class FeatureToolMissing(RuntimeError):
+    """The dance-features binary was not found (build the project first)."""
+
+
+def find_cli() -> Path:
+    candidates = []
+    if os.environ.get("DANCE_BUILD_DIR"):
+        candidates.append(Path(os.environ["DANCE_BUILD_DIR"]) / "bin" / "dance-features")
+    candidates += [Path("/work/main/build/bin/dance-features"), REPO_ROOT / "build" / "bin" / "dance-features"]
+    for c in candidates:
+        if c.is_file() and os.access(c, os.X_OK):
+            return c
+    raise FeatureToolMissing(
+        "dance-features not found (looked in: " + ", ".join(str(c) for c in candidates)
+        + "); build it with `cmake --preset release && cmake --build --preset release --target dance-features`"
+        " or set DANCE_BUILD_DIR")
+
+
+def _hash_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()[:16]
+
+
+def run_cli(audio: str | os.PathLike, out_dir: str | os.PathLike, chunk_samples: int | None = None,
+            cli: Path | None = None) -> dict:
+    """Runs the CLI once, writing features.npy, pre.npy, pre_input.npy into out_dir; returns the summary."""
+    cli = cli or find_cli()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cmd = [str(cli), str(audio), "--out", str(out_dir / "features.npy"), "--pre", str(out_dir / "pre.npy"),
+           "--pre-input", str(out_dir / "pre_input.npy"), "--summary"]
+    if chunk_samples is not None:
+        cmd += ["--chunk-samples", str(int(chunk_samples))]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"dance-features failed on {audio}: {proc.stderr.strip()}")
+    summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    (out_dir / "summary.json").write_text(json.dumps(summary))
+    return summary
+
+
+def _load(out_dir: Path) -> dict:
+    return {
+        "features": np.load(out_dir / "features.npy"),
+        "pre": np.load(out_dir / "pre.npy"),
+        "pre_input": np.load(out_dir / "pre_input.npy"),
+        "summary": json.loads((out_dir / "summary.json").read_text()),
+    }
+
+
+def extract_features(audio: str | os.PathLike, cache_dir: str | os.PathLike | None = None,
+                     use_cache: bool = True) -> dict:
+    """Features of one audio file: {"features", "pre", "pre_input", "summary"} (float32 arrays)."""
+    audio = Path(audio)
+    cli = find_cli()
+    if not use_cache:
+        with tempfile.TemporaryDirectory() as tmp:
+            run_cli(audio, tmp, cli=cli)
+            return _load(Path(tmp))
+    cache_root = Path(cache_dir or os.environ.get("DANCE_FEATURE_CACHE",
+                                                  Path.home() / ".cache" / "dance-features"))
+    key = f"{_hash_file(audio)}-{_hash_file(cli)}"
+    out_dir = cache_root / key
+    if not (out_dir / "summary.json").is_file():
+        tmp_dir = Path(tempfile.mkdtemp(dir=cache_root.mkdir(parents=True, exist_ok=True) or cache_root))
+        run_cli(audio, tmp_dir, cli=cli)
+        try:
+            tmp_dir.rename(out_dir)
+        except OSError:  # another process cached it first
+            pass
+    return _load(out_dir)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("audio", nargs="+")
+    parser.add_argument("--out-dir", help="also copy the arrays to OUT_DIR/<stem>_{features,pre}.npy")
+    args = parser.parse_args()
+    for a in args.audio:
+        r = extract_features(a)
+        s = r["summary"]
+        print(f"{a}: {r['features'].shape[0]} frames, {s['duration_s']:.1f} s, tempo {s['tempo_bpm']} BPM")
+        if args.out_dir:
+            out = Path(args.out_dir)
+            out.mkdir(parents=True, exist_ok=True)
+            stem = Path(a).parent.name if Path(a).stem == "audio" else Path(a).stem
+            np.save(out / f"{stem}_features.npy", r["features"])
+            np.save(out / f"{stem}_pre.npy", r["pre"])
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,127 @@
+"""Trains the default model end to end on CPU and exports it.
+
+    OMP_WAIT_POLICY=PASSIVE /usr/bin/python3 -m training.train            # everything, resumable
+    /usr/bin/python3 -m training.train --stages seq,eval,export --run training/runs/default
+
+Stages: data (motion cache, via training.data.prepare if missing), vq (both pose VQ-VAEs), seq (features
+with tempo augmentation, tokens, the Danceba model), eval (losses, music-ablation gap, tempo following),
+export (models/default.dncw + tests/golden/default). Every stage checkpoints into the run directory and is
+skipped or resumed when its outputs exist; the log is <run>/train.log, curves docs/images/training_*.png.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import time
+
+import numpy as np
+import torch
+
+from training import train_data as td
+from training.model.config import SeqConfig, VQConfig
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+
+
+class Logger:
+  def __init__(self, path: pathlib.Path):
+    self.path = path
+    path.parent.mkdir(parents=True, exist_ok=True)
+
+  def __call__(self, msg: str) -> None:
+    line = f"{time.strftime('%H:%M:%S')} {msg}"
+    print(line, flush=True)
+    with open(self.path, "a") as f:
+      f.write(line + "\n")
+
+
+def stage_vq(args, run: pathlib.Path, log: Logger) -> dict:
+  from training.train_vq import train_vq, validation_report
+  split = td.load_split()
+  train = [td.load_clip(i, with_music=False) for i in split["train"]]
+  val = [td.load_clip(i, with_music=False) for i in split["validation"]]
+  log(f"vq: {len(train)} train clips ({sum(len(c.upper) for c in train)} frames), {len(val)} validation")
+  vqs = {}
+  for part, dim in (("upper", 45), ("lower", 31)):
+    cfg = VQConfig(in_dim=dim, width=args.vq_width, code_dim=args.vq_code_dim,
+                   codebook_size=args.codebook_size)
+    arrays = [getattr(c, part) for c in train]
+    vqs[part], hist = train_vq(part, arrays, cfg, args.vq_iters, run / f"vq_{part}.pt", log)
+    (run / f"vq_{part}_history.json").write_text(json.dumps(hist))
+  report = validation_report(vqs, val)
+  log(f"vq validation: {json.dumps(report)}")
+  (run / "vq_report.json").write_text(json.dumps(report, indent=1))
+  return report
+
+
+def load_vqs(run: pathlib.Path):
+  from training.model.vqvae import PoseVQVAE
+  vqs = {}
+  for part in ("upper", "lower"):
+    ck = torch.load(run / f"vq_{part}.pt")
+    vq = PoseVQVAE(VQConfig.from_dict(ck["cfg"]))
+    vq.load_state_dict(ck["model"])
+    vqs[part] = vq.eval()
+  return vqs
+
+
+def main(argv=None) -> int:
+  ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  ap.add_argument("--run", default=str(REPO / "training" / "runs" / "default"))
+  ap.add_argument("--stages", default="data,vq,seq,eval,export")
+  ap.add_argument("--threads", type=int, default=2)
+  ap.add_argument("--vq-iters", type=int, default=3000)
+  ap.add_argument("--vq-width", type=int, default=128)
+  ap.add_argument("--vq-code-dim", type=int, default=64)
+  ap.add_argument("--codebook-size", type=int, default=512)
+  ap.add_argument("--seq-iters", type=int, default=3000)
+  ap.add_argument("--batch", type=int, default=16)
+  ap.add_argument("--val-every", type=int, default=100)
+  ap.add_argument("--lr", type=float, default=1e-3)
+  ap.add_argument("--seq-minutes", type=float, default=0, help="stop seq training after this (0: no limit)")
+  ap.add_argument("--d-model", type=int, default=128)
+  ap.add_argument("--n-head", type=int, default=2)
+  ap.add_argument("--lookahead", type=int, default=0, help="0 anticipatory, 1 reactive")
+  ap.add_argument("--code-mask", type=float, default=0.4, help="past-motion dropout rate")
+  ap.add_argument("--no-pre", action="store_true")
+  ap.add_argument("--no-gate", action="store_true")
+  ap.add_argument("--shared-mamba", action="store_true")
+  ap.add_argument("--tempo-factors", default=",".join(str(f) for f in td.TEMPO_FACTORS))
+  ap.add_argument("--vq-run", default=None, help="take the VQ-VAEs from this run directory")
+  ap.add_argument("--out", default=str(REPO / "models" / "default.dncw"))
+  ap.add_argument("--eval-songs", type=int, default=8)
+  args = ap.parse_args(argv)
+  torch.set_num_threads(args.threads)
+  os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+  run = pathlib.Path(args.run)
+  run.mkdir(parents=True, exist_ok=True)
+  log = Logger(run / "train.log")
+  stages = args.stages.split(",")
+  log(f"start: stages {stages}, args {vars(args)}")
+  t0 = time.time()
+  if "data" in stages:
+    td.ensure_motion_cache()
+  if "vq" in stages and not (run / "vq_report.json").is_file():
+    stage_vq(args, run, log)
+  vq_run = pathlib.Path(args.vq_run) if args.vq_run else run
+  if any(s in stages for s in ("seq", "eval", "export")):
+    from training import train_seq
+    vqs = load_vqs(vq_run)
+    cfg = SeqConfig(d_model=args.d_model, n_head=args.n_head, codebook_size=vqs["upper"].cfg.codebook_size,
+                    music_lookahead_steps=args.lookahead, use_pre=not args.no_pre,
+                    use_gate=not args.no_gate, shared_mamba=args.shared_mamba, n_styles=len(td.STYLES))
+    factors = tuple(float(f) for f in args.tempo_factors.split(","))
+    if "seq" in stages:
+      train_seq.stage_seq(args, cfg, vqs, factors, run, log)
+    if "eval" in stages:
+      train_seq.stage_eval(args, vqs, run, log)
+    if "export" in stages:
+      train_seq.stage_export(args, vqs, run, log)
+  log(f"done in {(time.time() - t0) / 60:.1f} min")
+  return 0
+
+
+if __name__ == "__main__":
+  raise SystemExit(main())

@@ -1,0 +1,214 @@
+"""Sequence-model stages of training.train: tokens, training with past-motion dropout, evaluation, export.
+
+Making the music matter (docs/training.md): tempo-augmented pairs (train_data.TEMPO_FACTORS), the rhythm
+clock (beat/bar phase and tempo features + PRE) and past-motion dropout: each input code is replaced by
+BOS with probability --code-mask and by a random code with probability code_mask / 4, so that the past
+motion alone cannot carry the timing and the model has to read the clock from the music.
+"""
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+import time
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from training import train_data as td
+from training.model.config import SeqConfig
+from training.model.danceba import Danceba
+
+STEPS = 64          # training window, code steps (8.5 s)
+BATCH = 16
+STYLE_DROPOUT = 0.15
+
+
+def tokenize(clip: td.Clip, vqs) -> dict:
+  """Codes of every period and the per-step music of one clip; music arrays cover 4 * n_periods frames."""
+  n = len(clip.upper) // 4
+  out = {"id": clip.motion_id, "factor": clip.factor, "style": clip.style}
+  for part in ("upper", "lower"):
+    vq = vqs[part]
+    x = torch.from_numpy(getattr(clip, part)[:4 * n])
+    out[part] = vq.encode(vq.normalise(x)[None])[0].numpy().astype(np.int64)
+  out["music"] = clip.features[:4 * n].reshape(n, -1)
+  out["pre"] = clip.pre[:4 * n][3::4]
+  return out
+
+
+def build_tokens(ids, factors, vqs, log, cache: pathlib.Path | None = None) -> list[dict]:
+  """Tokens of every (clip, factor); cached in `cache` (a file next to the VQ-VAE checkpoints) if given."""
+  if cache is not None and cache.is_file():
+    toks = torch.load(cache)
+    if sorted({t["id"] for t in toks}) == sorted(ids) and sorted({t["factor"] for t in toks}) == sorted(factors):
+      return toks
+  toks = []
+  for i in tqdm(ids, desc="tokens", mininterval=10):
+    for f in factors:
+      toks.append(tokenize(td.load_clip(i, f), vqs))
+  log(f"tokens: {len(toks)} clips, {sum(len(t['upper']) for t in toks)} steps")
+  if cache is not None:
+    torch.save(toks, cache)
+  return toks
+
+
+def make_batch(toks, cfg: SeqConfig, rng, batch=BATCH, steps=STEPS, code_mask=0.0, style_dropout=0.0,
+               music_from=None):
+  """Random windows. Inputs: codes of periods t0..t0+L-1 (BOS at the song start), music of t+s.
+  music_from: optional list of clips to take the music from instead (music-ablation)."""
+  s, k = cfg.music_lookahead_steps, cfg.codebook_size
+  lens = np.array([len(t["upper"]) for t in toks])
+  ok = np.flatnonzero(lens > steps + s + 1)
+  probs = (lens[ok] - steps) / (lens[ok] - steps).sum()
+  mus, pres, us, ls, tu, tl, sw = [], [], [], [], [], [], []
+  for j in rng.choice(ok, batch, p=probs):
+    t = toks[j]
+    t0 = 0 if rng.random() < 0.1 else int(rng.integers(0, len(t["upper"]) - steps - s))
+    src = t if music_from is None else music_from[j]
+    m = src["music"][t0 + s:t0 + s + steps]
+    p = src["pre"][t0 + s:t0 + s + steps]
+    if len(m) < steps:  # another song shorter than this window: wrap it
+      reps = math.ceil(steps / max(len(m), 1)) + 1
+      m = np.concatenate([src["music"]] * reps)[:steps]
+      p = np.concatenate([src["pre"]] * reps)[:steps]
+    u = t["upper"][t0:t0 + steps].copy()
+    l = t["lower"][t0:t0 + steps].copy()
+    if t0 == 0:
+      u[0] = l[0] = k
+    for c in (u, l):
+      r = rng.random(steps)
+      c[r < code_mask] = k
+      rnd = (r >= code_mask) & (r < code_mask * 1.25)
+      c[rnd] = rng.integers(0, k, int(rnd.sum()))
+    mus.append(m)
+    pres.append(p)
+    us.append(u)
+    ls.append(l)
+    tu.append(t["upper"][t0 + 1:t0 + steps + 1])
+    tl.append(t["lower"][t0 + 1:t0 + steps + 1])
+    w = np.zeros(cfg.n_styles + 1, np.float32)
+    w[cfg.n_styles if rng.random() < style_dropout else t["style"]] = 1
+    sw.append(w)
+  f = lambda a, dt=torch.float32: torch.from_numpy(np.stack(a)).to(dt)  # noqa: E731
+  return (f(mus), f(pres), f(us, torch.long), f(ls, torch.long), f(sw)), (f(tu, torch.long), f(tl, torch.long))
+
+
+def loss_of(model, inputs, targets) -> torch.Tensor:
+  lu, ll = model(*inputs)
+  return 0.5 * (F.cross_entropy(lu.flatten(0, 1), targets[0].flatten()) +
+                F.cross_entropy(ll.flatten(0, 1), targets[1].flatten()))
+
+
+@torch.no_grad()
+def validation(model, val_toks, cfg, n_batches=6) -> dict:
+  """Loss with the true music and with another validation song's music (same windows): the gap."""
+  was_training = model.training
+  model.eval()
+  wrong = val_toks[1:] + val_toks[:1]
+  out = {"true": [], "wrong": []}
+  for key, mf in (("true", None), ("wrong", wrong)):
+    rng = np.random.default_rng(123)
+    for _ in range(n_batches):
+      inputs, targets = make_batch(val_toks, cfg, rng, music_from=mf)
+      out[key].append(float(loss_of(model, inputs, targets)))
+  model.train(was_training)
+  vt, vw = float(np.mean(out["true"])), float(np.mean(out["wrong"]))
+  return {"val_loss": vt, "val_loss_wrong_music": vw, "music_gap": vw - vt}
+
+
+def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> None:
+  ck_path = run / "seq.pt"
+  split = td.load_split()
+  train_ids = td.paired_ids(split["train"])
+  val_ids = td.paired_ids(split["validation"])
+  vq_dir = pathlib.Path(args.vq_run) if args.vq_run else run
+  tag = "_".join(f"{f:g}" for f in factors)
+  train_toks = build_tokens(train_ids, factors, vqs, log, vq_dir / f"tokens_train_{tag}.pt")
+  val_toks = build_tokens(val_ids, (1.0,), vqs, log, vq_dir / "tokens_val.pt")
+  torch.manual_seed(0)
+  rng = np.random.default_rng(0)
+  model = Danceba(cfg)
+  base = [t for t in train_toks if t["factor"] == 1.0]
+  allm = np.concatenate([t["music"] for t in base])
+  with torch.no_grad():
+    model.music_mean.copy_(torch.from_numpy(allm.mean(0)))
+    model.music_std.copy_(torch.from_numpy(np.maximum(allm.std(0), 1e-2)))
+  n_params = sum(p.numel() for p in model.parameters())
+  log(f"seq: {n_params} parameters, cfg {json.dumps(cfg.to_dict())}")
+  opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=0.05)
+  lr0 = opt.param_groups[0]["lr"]
+  history, start, elapsed = [], 0, 0.0
+  if ck_path.is_file():
+    ck = torch.load(ck_path)
+    model.load_state_dict(ck["model"])
+    opt.load_state_dict(ck["opt"])
+    history, start, elapsed = ck["history"], ck["iter"], ck.get("elapsed", 0.0)
+    rng = np.random.default_rng(start)
+  iters = args.seq_iters
+  model.train()
+  t_start = time.time() - elapsed
+
+  def save(it):
+    torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "history": history, "iter": it,
+                "cfg": cfg.to_dict(), "elapsed": time.time() - t_start}, ck_path)
+
+  for it in tqdm(range(start, iters), desc="seq", initial=start, total=iters, mininterval=10):
+    warm = min(1.0, (it + 1) / 200)
+    for g in opt.param_groups:
+      g["lr"] = lr0 * warm * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * it / iters)))
+    inputs, targets = make_batch(train_toks, cfg, rng, batch=args.batch, code_mask=args.code_mask,
+                                 style_dropout=STYLE_DROPOUT)
+    loss = loss_of(model, inputs, targets)
+    opt.zero_grad()
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+    opt.step()
+    if it % 25 == 0:
+      history.append({"iter": it, "loss": float(loss)})
+    if it % args.val_every == args.val_every - 1 or it == iters - 1:
+      v = validation(model, val_toks, cfg)
+      history.append(dict(v, iter=it + 1, minutes=(time.time() - t_start) / 60))
+      log(f"seq iter {it + 1}/{iters} train {float(loss):.3f} {json.dumps(v)}")
+      save(it + 1)
+      (run / "seq_history.json").write_text(json.dumps(history))
+      if args.seq_minutes and (time.time() - t_start) / 60 > args.seq_minutes:
+        log(f"seq: time budget of {args.seq_minutes} min reached at iter {it + 1}")
+        break
+  save(it + 1 if iters > start else start)
+  (run / "seq_history.json").write_text(json.dumps(history))
+  log(f"seq: {(time.time() - t_start) / 60:.1f} min")
+
+
+def load_seq(run: pathlib.Path) -> Danceba:
+  ck = torch.load(run / "seq.pt")
+  model = Danceba(SeqConfig.from_dict(ck["cfg"]))
+  model.load_state_dict(ck["model"])
+  return model.eval()
+
+
+def stage_eval(args, vqs, run: pathlib.Path, log) -> dict:
+  from training.train_eval import evaluate_model
+  model = load_seq(run)
+  report = evaluate_model(model, vqs, run, log, n_songs=args.eval_songs)
+  (run / "eval_report.json").write_text(json.dumps(report, indent=1))
+  return report
+
+
+def stage_export(args, vqs, run: pathlib.Path, log) -> None:
+  from training.export import export_model
+  from training.fixtures import FEATURES_META, skeleton_meta, write_fixtures
+  model = load_seq(run)
+  out = pathlib.Path(args.out)
+  extra = {"model_id": out.stem + "-" + time.strftime("%Y%m%d"), "features": FEATURES_META,
+           "skeleton": skeleton_meta(), "styles": td.STYLES, "training": {"run": str(run)}}
+  for name in ("vq_report.json", "eval_report.json"):
+    if (run / name).is_file():
+      extra["training"][name.removesuffix(".json")] = json.loads((run / name).read_text())
+  export_model(str(out), model, vqs, extra)
+  log(f"export: {out} ({out.stat().st_size / 1e6:.1f} MB)")
+  if out.parent.resolve() == (td.REPO / "models").resolve():
+    idx = write_fixtures(out.resolve(), td.REPO / "tests" / "golden" / out.stem)
+    log(f"fixtures: tests/golden/{out.stem} ({len(idx['arrays'])} arrays)")
