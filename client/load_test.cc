@@ -21,6 +21,23 @@ double Percentile(std::vector<float>& v, double q) {
 
 }  // namespace
 
+int64_t FramesForAudio(int64_t audio_frames, int sample_rate_hz, double fps, int frames_per_step) {
+  if (audio_frames <= 0 || sample_rate_hz <= 0 || fps <= 0) return 0;
+  // Exact in integers for the usual rates (e.g. 44100 Hz x 30 fps); a tiny epsilon guards the rest.
+  const double frames = static_cast<double>(audio_frames) * fps / static_cast<double>(sample_rate_hz);
+  const int64_t whole = static_cast<int64_t>(std::floor(frames + 1e-9));
+  return std::max<int64_t>(0, whole - std::max(0, frames_per_step));
+}
+
+int64_t StreamExpectedFrames(const StreamTally& t) {
+  const int64_t from_audio = FramesForAudio(t.audio_frames_sent, t.sample_rate_hz, t.fps, t.frames_per_step);
+  return t.got_end ? std::max(t.end_frames, from_audio) : from_audio;
+}
+
+int64_t StreamMissingFrames(const StreamTally& t) {
+  return std::max({int64_t{0}, StreamExpectedFrames(t) - t.received, t.gaps});
+}
+
 absl::StatusOr<LoadReport> RunLoad(const LoadOptions& o, std::shared_ptr<const AudioClip> clip,
                                    std::ostream& progress) {
   if (o.streams < 1) return absl::InvalidArgumentError("--streams must be >= 1");
@@ -88,16 +105,35 @@ absl::StatusOr<LoadReport> RunLoad(const LoadOptions& o, std::shared_ptr<const A
   r.streams = o.streams;
   r.duration_s = absl::ToDoubleSeconds(t1 - t0);
   std::vector<float> lat;
+  // Streams that never got a SessionInfo (e.g. refused) use the model's rates from one that did.
+  double fps = 30.0;
+  int frames_per_step = 4;
+  for (auto& s : streams) {
+    (void)s->Wait();
+    if (s->got_info() && s->info().fps() > 0) {
+      fps = s->info().fps();
+      frames_per_step = s->info().frames_per_step();
+      break;
+    }
+  }
   for (auto& s : streams) {
     absl::Status st = s->Wait();
     const FrameStats& fs = s->stats();
     r.frames += fs.frames;
-    r.dropped_frames += fs.gaps;
+    StreamTally t;
+    t.received = fs.frames;
+    t.gaps = fs.gaps;
+    t.audio_frames_sent = s->audio_frames_sent();
+    t.sample_rate_hz = clip->sample_rate;
+    t.got_end = st.ok() && s->got_end();
+    t.end_frames = s->end().frames();
+    t.fps = s->got_info() && s->info().fps() > 0 ? s->info().fps() : fps;
+    t.frames_per_step = s->got_info() && s->info().fps() > 0 ? s->info().frames_per_step() : frames_per_step;
+    r.expected_frames += StreamExpectedFrames(t);
+    r.dropped_frames += StreamMissingFrames(t);
     if (!st.ok()) {
       ++r.errors;
       if (r.first_error.empty()) r.first_error = st.ToString();
-    } else if (s->end().frames() > fs.frames) {
-      r.dropped_frames += s->end().frames() - fs.frames;
     }
     lat.insert(lat.end(), fs.latency_ms.begin(), fs.latency_ms.end());
     r.max_skew_ms = std::max(r.max_skew_ms, fs.max_skew_ms);
@@ -117,6 +153,7 @@ std::string LoadReportJson(const LoadReport& r) {
                       {"frames_per_s", round3(r.frames_per_s)},
                       {"errors", r.errors},
                       {"dropped_frames", r.dropped_frames},
+                      {"expected_frames", r.expected_frames},
                       {"p50_ms", round3(r.p50_ms)},
                       {"p95_ms", round3(r.p95_ms)},
                       {"p99_ms", round3(r.p99_ms)},

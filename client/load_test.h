@@ -39,11 +39,36 @@ struct LoadReport {
   double frames_per_s = 0.0;          // all streams together
   int64_t frames = 0;
   int errors = 0;                     // sessions that did not end OK
-  int64_t dropped_frames = 0;         // performer frames missing (index gaps + frames the server made but we lacked)
+  // Frames the audio sent called for (per stream: the server's StreamEnd count if it ended, else at least
+  // the lower bound of FramesForAudio; see StreamExpectedFrames), summed over streams.
+  int64_t expected_frames = 0;
+  // Performer frames that never arrived: per stream max(expected - received, index gaps), summed. A session
+  // that failed (no StreamEnd) counts everything its audio called for and it did not get.
+  int64_t dropped_frames = 0;
   double p50_ms = 0.0, p95_ms = 0.0, p99_ms = 0.0, max_ms = 0.0;
   double max_skew_ms = 0.0;
   std::string first_error;
 };
+
+// What one stream of a load run saw, for the frame accounting.
+struct StreamTally {
+  int64_t received = 0;          // frames received
+  int64_t gaps = 0;              // missing indices between received frames
+  int64_t audio_frames_sent = 0; // sample frames of audio sent
+  int sample_rate_hz = 0;        // of that audio
+  bool got_end = false;          // StreamEnd arrived (then end_frames is the server's count)
+  int64_t end_frames = 0;
+  double fps = 30.0;             // from SessionInfo
+  int frames_per_step = 4;       // from SessionInfo
+};
+// A lower bound of the frames a server emits for `audio_frames` of audio (docs/life-of-a-stream.md: the
+// dance covers every period the audio reaches into, the first period emits no frame): floor(seconds * fps)
+// minus one step, at least 0.
+int64_t FramesForAudio(int64_t audio_frames, int sample_rate_hz, double fps, int frames_per_step);
+// max(server's StreamEnd count if any, FramesForAudio(audio sent)).
+int64_t StreamExpectedFrames(const StreamTally& t);
+// Frames that never arrived: max(expected - received, gaps).
+int64_t StreamMissingFrames(const StreamTally& t);
 
 absl::StatusOr<LoadReport> RunLoad(const LoadOptions& options, std::shared_ptr<const AudioClip> clip,
                                    std::ostream& progress);

@@ -120,6 +120,7 @@ void PerformStream::HandleUpdate(const dance::v1::DanceUpdate& u, absl::Time arr
   switch (u.kind_case()) {
     case dance::v1::DanceUpdate::kInfo: {
       info_ = u.info();
+      got_info_ = true;
       absl::MutexLock lock(&mu_);
       session_id_ = info_.session_id();
       break;
@@ -144,6 +145,7 @@ void PerformStream::HandleUpdate(const dance::v1::DanceUpdate& u, absl::Time arr
     }
     case dance::v1::DanceUpdate::kEnd:
       end_ = u.end();
+      got_end_ = true;
       break;
     default:
       break;
@@ -164,6 +166,11 @@ bool PerformStream::done() const {
 int64_t PerformStream::frames_received() const {
   absl::MutexLock lock(&mu_);
   return frames_count_;
+}
+
+int64_t PerformStream::audio_frames_sent() const {
+  absl::MutexLock lock(&mu_);
+  return sent_frames_;
 }
 
 std::string PerformStream::session_id() const {

@@ -66,6 +66,10 @@ class PerformStream : public grpc::ClientBidiReactor<dance::v1::PerformRequest, 
   const std::vector<dance::v1::PoseFrame>& frames() const { return frames_; }
   const FrameStats& stats() const { return stats_; }
   const dance::v1::StreamEnd& end() const { return end_; }
+  bool got_info() const { return got_info_; }
+  bool got_end() const { return got_end_; }
+  // Audio sample frames (at the source's rate) handed to gRPC so far (thread-safe).
+  int64_t audio_frames_sent() const;
   SampleSource* source() { return source_.get(); }
 
   void OnWriteDone(bool ok) override;
@@ -103,6 +107,8 @@ class PerformStream : public grpc::ClientBidiReactor<dance::v1::PerformRequest, 
   dance::v1::SessionInfo info_;
   std::vector<dance::v1::PoseFrame> frames_;
   dance::v1::StreamEnd end_;
+  bool got_info_ = false;
+  bool got_end_ = false;
   FrameStats stats_;
   int64_t next_index_ = -1;
   std::vector<float> scratch_;

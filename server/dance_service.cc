@@ -21,8 +21,12 @@ class PerformReactor final : public grpc::ServerBidiReactor<PerformRequest, Danc
  public:
   PerformReactor(DanceServiceImpl* service, grpc::CallbackServerContext* context)
       : service_(service),
+        context_(context),
         writer_(std::make_shared<Writer>(this, Writer::Mode::kLossless, service->options().performer_queue_limit,
                                          /*wants_rotations=*/true, service->metrics())) {
+    // An OK end waits for the client's half-close (bounded), so that anything it sends after EndOfAudio
+    // is still seen and answered with INVALID_ARGUMENT (docs/protocol.md).
+    writer_->RequireHalfCloseBeforeOk(service->options().half_close_grace);
     absl::Status auth = service_->CheckAuth(*context);
     if (!auth.ok()) {
       Fail(auth);
@@ -37,8 +41,12 @@ class PerformReactor final : public grpc::ServerBidiReactor<PerformRequest, Danc
 
   void OnReadDone(bool ok) override {
     if (!ok) {
-      // Half-close (or a dead call). Without EndOfAudio a half-close still means "no more audio".
-      if (auto s = session(); s == nullptr) {
+      // Half-close (or a dead call). Without EndOfAudio a half-close still means "no more audio", but a
+      // cancelled call is not a half-close: it must end CANCELLED, never OK (OnCancel may run after this).
+      writer_->ReadsDone();
+      if (context_->IsCancelled()) {
+        OnCancel();  // idempotent; gRPC calls it too, maybe later
+      } else if (auto s = session(); s == nullptr) {
         Fail(absl::InvalidArgumentError("stream closed before a StreamHeader"));
       } else if (!end_sent_) {
         end_sent_ = true;
@@ -58,8 +66,10 @@ class PerformReactor final : public grpc::ServerBidiReactor<PerformRequest, Danc
   void OnWriteDone(bool ok) override { writer_->OnWriteDone(ok); }
 
   void OnCancel() override {
-    if (auto s = session()) s->Fail(absl::CancelledError("client went away"));
-    writer_->Close(absl::CancelledError("client went away"));
+    const absl::Status cancelled = absl::CancelledError("client went away");
+    // A session that already completed OK (e.g. its implicit end raced this cancel) ends CANCELLED too.
+    if (auto s = session(); s != nullptr && !s->Fail(cancelled)) writer_->Abort(cancelled);
+    writer_->Close(cancelled);
   }
 
   void OnDone() override {
@@ -107,6 +117,8 @@ class PerformReactor final : public grpc::ServerBidiReactor<PerformRequest, Danc
       }
       case PerformRequest::kAudio: {
         if (session() == nullptr) return absl::InvalidArgumentError("audio before the StreamHeader");
+        // Checked here, not only in the session: the session may already have completed.
+        if (end_sent_) return absl::InvalidArgumentError("audio after EndOfAudio");
         absl::Status c = ValidateChunk(request_.audio().pcm().size(), header_, service_->options().limits);
         if (!c.ok()) return c;
         bool pause = false;
@@ -129,10 +141,14 @@ class PerformReactor final : public grpc::ServerBidiReactor<PerformRequest, Danc
           if (!sc.ok()) return sc.status();
           sampling = *sc;
         }
-        return session()->EnqueueControl(std::move(style), sampling);
+        absl::Status q = session()->EnqueueControl(std::move(style), sampling);
+        // A control racing the session's end is harmless ("any time after the header"): ignore it.
+        if (q.code() == absl::StatusCode::kFailedPrecondition) return absl::OkStatus();
+        return q;
       }
       case PerformRequest::kEnd:
         if (session() == nullptr) return absl::InvalidArgumentError("EndOfAudio before the StreamHeader");
+        if (end_sent_) return absl::InvalidArgumentError("EndOfAudio sent twice");
         end_sent_ = true;
         return session()->EnqueueEnd(now);
       default:
@@ -144,7 +160,9 @@ class PerformReactor final : public grpc::ServerBidiReactor<PerformRequest, Danc
     std::shared_ptr<LiveSession> s = session();
     if (!rejected_ && s == nullptr) service_->metrics()->CountError(status.code());
     if (s != nullptr) {
-      s->Fail(status);  // the scheduler closes the writer with this status
+      // The scheduler closes the writer with this status; if the session already completed (OK, its
+      // finish waiting for our half-close), the protocol error replaces that OK here.
+      if (!s->Fail(status)) writer_->Abort(status);
     } else {
       writer_->Close(status);
     }
@@ -153,6 +171,7 @@ class PerformReactor final : public grpc::ServerBidiReactor<PerformRequest, Danc
   }
 
   DanceServiceImpl* const service_;
+  grpc::CallbackServerContext* const context_;
   std::shared_ptr<Writer> writer_;
   PerformRequest request_;
   ValidatedHeader header_;

@@ -18,6 +18,7 @@
 #include <grpcpp/grpcpp.h>
 
 #include "absl/status/status.h"
+#include "absl/time/time.h"
 #include "dance/v1/dance.grpc.pb.h"
 #include "server/convert.h"
 #include "server/metrics.h"
@@ -30,6 +31,8 @@ struct ServiceOptions {
   StreamLimits limits;
   size_t performer_queue_limit = 1024; // updates queued for a performer before RESOURCE_EXHAUSTED
   size_t viewer_queue_frames = 8;      // frames queued for a viewer before old ones are dropped
+  // After a session ends OK its Perform call finishes once the client half-closes, or after this long.
+  absl::Duration half_close_grace = absl::Seconds(5);
 };
 
 class DanceServiceImpl final : public dance::v1::DanceService::CallbackService {

@@ -27,7 +27,7 @@ LiveSession::LiveSession(SessionSettings settings, std::unique_ptr<EngineStream>
       stream_(std::move(stream)),
       metrics_(metrics),
       started_(now),
-      last_audio_(now) {
+      last_arrival_(now) {
   auto info = std::make_shared<dance::v1::DanceUpdate>();
   dance::v1::SessionInfo* si = info->mutable_info();
   si->set_session_id(settings_.id);
@@ -61,6 +61,7 @@ absl::Status LiveSession::QueueAudio(int64_t sample_offset, std::string pcm, abs
   item.end_sample = next_offset_;
   item.arrival = arrival;
   inbox_.push_back(std::move(item));
+  last_arrival_ = std::max(last_arrival_, arrival);
   if (pending_samples_ > settings_.max_pending_samples) {
     reader_paused_ = true;
     *pause_reading = true;
@@ -111,13 +112,15 @@ absl::Status LiveSession::EnqueueEnd(absl::Time arrival) {
   return s;
 }
 
-void LiveSession::Fail(const absl::Status& status) {
+bool LiveSession::Fail(const absl::Status& status) {
   {
     absl::MutexLock lock(&inbox_mu_);
-    if (failure_ || closed_) return;
+    if (closed_) return false;
+    if (failure_) return true;
     failure_ = status.ok() ? absl::InternalError("Fail(OK)") : status;
   }
   if (settings_.wake) settings_.wake();
+  return true;
 }
 
 void LiveSession::SetReadResumer(std::function<void()> resumer) {
@@ -138,7 +141,7 @@ void LiveSession::AttachPerformer(std::shared_ptr<FrameSink> sink) {
 
 absl::Status LiveSession::AddViewer(std::shared_ptr<FrameSink> sink) {
   absl::MutexLock lock(&sinks_mu_);
-  if (sinks_closed_) return absl::NotFoundError(absl::StrCat("session ", settings_.id, " has ended"));
+  if (sinks_closed_ || ended_) return absl::NotFoundError(absl::StrCat("session ", settings_.id, " has ended"));
   if (static_cast<int>(viewers_.size()) >= settings_.max_viewers) {
     return absl::ResourceExhaustedError(
         absl::StrCat("session ", settings_.id, " already has ", viewers_.size(), " viewers"));
@@ -222,7 +225,6 @@ absl::Status LiveSession::Drain(absl::Time now) {
                                (BytesPerSample(settings_.format) * settings_.config.channels);
         samples_in_.fetch_add(frames, std::memory_order_relaxed);
         metrics_->audio_samples_total.fetch_add(frames, std::memory_order_relaxed);
-        last_audio_ = item.arrival;
         RecordTrigger(item.end_sample, item.arrival);
         break;
       }
@@ -244,16 +246,21 @@ absl::Status LiveSession::Drain(absl::Time now) {
         break;
     }
   }
+  // A tempo-normalised model emits real frames as their audio arrives (not only after a step): send them.
+  if (!items.empty()) PublishFrames(now);
   if (resume) resume();
   return absl::OkStatus();
 }
 
 absl::Status LiveSession::CheckHealth(absl::Time now) {
+  bool idle = false;
   {
     absl::MutexLock lock(&inbox_mu_);
     if (failure_) return *failure_;
+    // Queued audio or paused reads: the server is behind, not the client.
+    idle = !end_queued_ && !reader_paused_ && inbox_.empty() && now - last_arrival_ > settings_.idle_timeout;
   }
-  if (!end_drained_ && now - last_audio_ > settings_.idle_timeout) {
+  if (idle && !end_drained_) {
     return absl::DeadlineExceededError(
         absl::StrCat("no audio for ", absl::FormatDuration(settings_.idle_timeout), " (idle timeout)"));
   }
@@ -356,14 +363,21 @@ bool LiveSession::OutputBacklogged(absl::Time now) {
 
 bool LiveSession::ReadyToComplete() const { return end_drained_ && stream_->StepsReady() == 0; }
 
-void LiveSession::Complete(const absl::Status& status) {
-  if (completed_) return;
+absl::Status LiveSession::Complete(const absl::Status& requested) {
+  if (completed_) return final_status_;
   completed_ = true;
+  absl::Status status = requested;
   {
     absl::MutexLock lock(&inbox_mu_);
+    if (status.ok() && failure_) status = *failure_;
+    final_status_ = status;
     closed_ = true;
     inbox_.clear();
     resumer_ = nullptr;
+  }
+  {
+    absl::MutexLock lock(&sinks_mu_);
+    ended_ = true;
   }
   if (status.ok()) {
     PublishFrames(absl::Now());  // the engine may flush a tail on EndOfAudio
@@ -374,10 +388,16 @@ void LiveSession::Complete(const absl::Status& status) {
     e->set_reason("end_of_audio");
     PublishOne(u);
   }
+  return status;
+}
+
+void LiveSession::CloseSinks() {
+  const absl::Status status = final_status_;
   std::shared_ptr<FrameSink> performer;
   std::vector<std::shared_ptr<FrameSink>> viewers;
   {
     absl::MutexLock lock(&sinks_mu_);
+    if (sinks_closed_) return;
     sinks_closed_ = true;
     performer = std::move(performer_);
     viewers.swap(viewers_);

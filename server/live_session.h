@@ -73,8 +73,9 @@ class LiveSession {
   absl::Status EnqueueAudio(int64_t sample_offset, std::string pcm, absl::Time arrival, bool* pause_reading);
   absl::Status EnqueueControl(std::optional<StyleMix> style, std::optional<SamplingConfig> sampling);
   absl::Status EnqueueEnd(absl::Time arrival);
-  // Ends the session with `status` (not OK) at the scheduler's next pass. First failure wins.
-  void Fail(const absl::Status& status);
+  // Ends the session with `status` (not OK) at the scheduler's next pass. First failure wins. Returns
+  // false if the session is already over (completed), true otherwise.
+  bool Fail(const absl::Status& status);
   void SetReadResumer(std::function<void()> resumer);
   // The performer's sink; receives info immediately.
   void AttachPerformer(std::shared_ptr<FrameSink> sink);
@@ -89,7 +90,9 @@ class LiveSession {
   // Feeds queued audio/controls/end into the engine. An error ends the session (caller calls Complete).
   absl::Status Drain(absl::Time now);
   // DEADLINE_EXCEEDED after idle_timeout without audio or max_duration in total; also returns a pending
-  // Fail() status.
+  // Fail() status. Idle time is measured from the last chunk's arrival at the server (not from when this
+  // scheduler drained it), and never runs while audio is waiting in the inbox or reading is paused by
+  // flow control: a server too busy to keep up must not blame the client.
   absl::Status CheckHealth(absl::Time now);
   int StepsReady() const { return stream_->StepsReady(); }
   // True while the performer's backlog is above output_soft_limit (then do not step this session).
@@ -99,8 +102,14 @@ class LiveSession {
   void AfterStep(absl::Time now);
   // EndOfAudio was drained and no step remains.
   bool ReadyToComplete() const;
-  // Publishes StreamEnd (if OK) and closes every sink. Idempotent.
-  void Complete(const absl::Status& status);
+  // Ends the session: publishes any tail frames and StreamEnd (if OK). Then the caller does its
+  // bookkeeping (registry, metrics) and calls CloseSinks, so that a client that sees its call end also
+  // sees the session gone from ListSessions, /api/sessions and the metrics. Idempotent. Returns the
+  // status the session really ends with: an OK `status` yields to a Fail() that raced it (posted after
+  // the scheduler's last health check), so a failure accepted by Fail() is never lost.
+  absl::Status Complete(const absl::Status& status);
+  // Closes the performer's and viewers' sinks with the status given to Complete. Idempotent.
+  void CloseSinks();
   bool completed() const { return completed_; }
 
  private:
@@ -146,11 +155,13 @@ class LiveSession {
   std::optional<absl::Status> failure_ ABSL_GUARDED_BY(inbox_mu_);
   std::optional<StyleMix> current_style_ ABSL_GUARDED_BY(inbox_mu_);
   bool closed_ ABSL_GUARDED_BY(inbox_mu_) = false;
+  absl::Time last_arrival_ ABSL_GUARDED_BY(inbox_mu_);  // last audio chunk's arrival (network side)
 
   mutable absl::Mutex sinks_mu_;
   std::shared_ptr<FrameSink> performer_ ABSL_GUARDED_BY(sinks_mu_);
   std::vector<std::shared_ptr<FrameSink>> viewers_ ABSL_GUARDED_BY(sinks_mu_);
   bool sinks_closed_ ABSL_GUARDED_BY(sinks_mu_) = false;
+  bool ended_ ABSL_GUARDED_BY(sinks_mu_) = false;  // Complete() ran: no new viewers
 
   // Progress counters, written by the scheduler, read by Summary (relaxed atomics).
   std::atomic<int64_t> frames_out_{0};
@@ -161,7 +172,7 @@ class LiveSession {
   int64_t steps_done_ = 0;
   int64_t steps_marked_ = 0;
   bool end_drained_ = false;
-  absl::Time last_audio_;
+  absl::Status final_status_;
   std::optional<absl::Time> backlogged_since_;
   bool completed_ = false;
   std::vector<float> f32_buf_;

@@ -44,44 +44,52 @@ void Scheduler::Wake() {
 
 void Scheduler::CompleteSession(LiveSession& session, const absl::Status& status) {
   if (session.completed()) return;
-  session.Complete(status);
+  const absl::Status final_status = session.Complete(status);
   size_.fetch_sub(1, std::memory_order_relaxed);
-  on_complete_(session, status);
+  // Bookkeeping (registry, metrics) before the sinks close: whoever sees the call end sees it counted.
+  on_complete_(session, final_status);
+  session.CloseSinks();
 }
 
 void Scheduler::Run() {
+  bool busy = false;
   while (true) {
     {
       absl::MutexLock lock(&mu_);
       auto due = [this]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) { return wake_ || stop_; };
-      mu_.AwaitWithTimeout(absl::Condition(&due), options_.poll);
+      if (!busy) mu_.AwaitWithTimeout(absl::Condition(&due), options_.poll);
       if (stop_) return;
       wake_ = false;
       for (auto& s : incoming_) sessions_.push_back(std::move(s));
       incoming_.clear();
     }
-    Pass();
+    busy = Pass();
   }
 }
 
-void Scheduler::Pass() {
+bool Scheduler::Pass() {
   absl::Time now = absl::Now();
   for (auto& s : sessions_) {
     absl::Status st = s->CheckHealth(now);
     if (st.ok()) st = s->Drain(now);
     if (!st.ok()) CompleteSession(*s, st);
   }
-  // Step rounds: one step per ready session per round.
-  while (true) {
+  // One round: every ready session takes exactly one step (in batches of at most max_batch). The caller
+  // runs the next pass at once, so new sessions, new audio and timeouts are seen between rounds even when
+  // the engine cannot keep up (a pass never grows with the backlog).
+  bool stepped = false;
+  size_t next = 0;
+  while (next < sessions_.size()) {
     batch_.clear();
     streams_.clear();
-    for (auto& s : sessions_) {
+    for (; next < sessions_.size() && static_cast<int>(batch_.size()) < options_.max_batch; ++next) {
+      LiveSession* s = sessions_[next].get();
       if (s->completed() || s->StepsReady() <= 0 || s->OutputBacklogged(now)) continue;
-      batch_.push_back(s.get());
+      batch_.push_back(s);
       streams_.push_back(s->engine_stream());
-      if (static_cast<int>(batch_.size()) >= options_.max_batch) break;
     }
     if (batch_.empty()) break;
+    stepped = true;
     const absl::Time t0 = absl::Now();
     absl::Status st = backend_->StepBatch(streams_);
     now = absl::Now();
@@ -96,13 +104,6 @@ void Scheduler::Pass() {
         CompleteSession(*s, st);
       }
     }
-    // New audio that arrived during the step joins the next round.
-    for (auto& s : sessions_) {
-      if (s->completed() || !s->has_pending_work()) continue;
-      absl::Status hs = s->CheckHealth(now);
-      if (hs.ok()) hs = s->Drain(now);
-      if (!hs.ok()) CompleteSession(*s, hs);
-    }
   }
   for (auto& s : sessions_) {
     if (!s->completed() && s->ReadyToComplete()) CompleteSession(*s, absl::OkStatus());
@@ -110,6 +111,7 @@ void Scheduler::Pass() {
   sessions_.erase(std::remove_if(sessions_.begin(), sessions_.end(),
                                  [](const std::shared_ptr<LiveSession>& s) { return s->completed(); }),
                   sessions_.end());
+  return stepped;
 }
 
 }  // namespace dance::server

@@ -1,10 +1,11 @@
 // Scheduler: one thread that owns a set of LiveSessions and advances every due session in batched engine
 // steps (one EngineBackend::StepBatch pass over the weights serves many sessions).
 //
-// Each pass: take new sessions, check health (failures, timeouts), drain inboxes into the engine, then step
-// in rounds: every session with a ready step takes exactly one step per round (so a client streaming as
-// fast as possible cannot starve real-time ones), until no session has a step ready. Finished sessions are
-// completed and handed to `on_complete`.
+// Each pass: take new sessions, check health (failures, timeouts), drain inboxes into the engine, then one
+// step round: every session with a ready step takes exactly one step (so a client streaming as fast as
+// possible cannot starve real-time ones). Passes follow each other without waiting while steps were taken,
+// so new sessions, fresh audio and timeouts are handled between rounds even when the engine is behind.
+// Finished sessions are completed, handed to `on_complete`, and only then their sinks are closed.
 //
 // Usage:
 //   Scheduler sched(backend, &metrics, {.max_batch = 256}, [](LiveSession& s, const absl::Status& st) {...});
@@ -56,7 +57,8 @@ class Scheduler {
 
  private:
   void Run();
-  void Pass();
+  // Health, drain, one step round, completions. Returns whether any session stepped (more may be ready).
+  bool Pass();
   void CompleteSession(LiveSession& session, const absl::Status& status);
 
   const EngineBackend* const backend_;

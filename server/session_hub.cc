@@ -166,12 +166,13 @@ void SessionHub::Shutdown() {
 }
 
 void SessionHub::OnComplete(LiveSession& session, const absl::Status& status) {
+  // Counted before the session leaves the registry: whoever sees active_sessions() drop sees the counts.
+  metrics_->sessions_finished_total.fetch_add(1);
+  if (!status.ok()) metrics_->CountError(status.code());
   {
     absl::MutexLock lock(&mu_);
     sessions_.erase(session.id());
   }
-  metrics_->sessions_finished_total.fetch_add(1);
-  if (!status.ok()) metrics_->CountError(status.code());
   const dance::v1::SessionSummary sum = session.Summary();
   Log(status.ok() ? LogLevel::kInfo : LogLevel::kWarning, "session_end",
       {{"session", session.id()}, {"status", absl::StatusCodeToString(status.code())},

@@ -6,7 +6,10 @@
 // No lock is held while calling into gRPC (reactions may run inline).
 //
 // Lossless mode (performers): the queue may hold `limit` updates; beyond that the call finishes with
-// RESOURCE_EXHAUSTED (the client stopped reading). Lossy mode (viewers): at most `limit` frames are queued;
+// RESOURCE_EXHAUSTED (the client stopped reading). A performer's call that ends OK finishes only once the
+// client has half-closed (ReadsDone) or `half_close_grace` has passed since Close(OK): until then a message
+// the client sends after EndOfAudio can still turn the status into its protocol error (Abort), so "audio
+// after EndOfAudio" is INVALID_ARGUMENT however fast the session completed. Lossy mode (viewers): at most `limit` frames are queued;
 // the oldest queued frame is dropped for a new one and the next frame sent carries dropped_before.
 //
 // R must provide: void IssueWrite(const dance::v1::DanceUpdate*); void IssueRead(); void IssueFinish(grpc::Status).
@@ -21,12 +24,15 @@
 #include <optional>
 #include <utility>
 
+#include <grpcpp/alarm.h>
 #include <grpcpp/grpcpp.h>
 
 #include "absl/base/thread_annotations.h"
 #include "absl/status/status.h"
 #include "absl/strings/str_cat.h"
 #include "absl/synchronization/mutex.h"
+#include "absl/time/clock.h"
+#include "absl/time/time.h"
 #include "server/frame_sink.h"
 #include "server/metrics.h"
 
@@ -37,7 +43,7 @@ inline grpc::Status ToGrpcStatus(const absl::Status& s) {
 }
 
 template <typename R>
-class StreamWriter : public FrameSink {
+class StreamWriter : public FrameSink, public std::enable_shared_from_this<StreamWriter<R>> {
  public:
   enum class Mode { kLossless, kLossy };
 
@@ -80,6 +86,7 @@ class StreamWriter : public FrameSink {
 
   void Close(const absl::Status& status) override {
     bool finish = false;
+    bool arm = false;
     {
       absl::MutexLock lock(&mu_);
       if (closing_ || finish_issued_) return;
@@ -90,8 +97,50 @@ class StreamWriter : public FrameSink {
         queued_frames_ = 0;
       }
       finish = ShouldFinishLocked();
+      arm = status.ok() && !finish && !reads_done_ && half_close_grace_ > absl::ZeroDuration();
     }
     if (finish) reactor_->IssueFinish(ToGrpcStatus(close_status_copy()));
+    if (arm) ArmHalfCloseGrace();
+  }
+
+  // Requires the client's half-close before an OK finish (performers; call before the writer is shared).
+  // After `grace` without one the call finishes OK anyway (a client that never half-closes).
+  void RequireHalfCloseBeforeOk(absl::Duration grace) {
+    absl::MutexLock lock(&mu_);
+    reads_done_ = false;
+    half_close_grace_ = grace;
+  }
+
+  // The client half-closed (or the read side is over): an OK finish no longer waits for it.
+  void ReadsDone() {
+    bool finish = false;
+    {
+      absl::MutexLock lock(&mu_);
+      if (reads_done_) return;
+      reads_done_ = true;
+      finish = ShouldFinishLocked();
+    }
+    if (finish) reactor_->IssueFinish(ToGrpcStatus(close_status_copy()));
+  }
+
+  // An error seen after the session already ended (LiveSession::Fail refused it: audio after EndOfAudio,
+  // a cancel): unless the call already finishes with an error or its finish was issued, finish with
+  // `status` instead of OK (even if the session's Close(OK) has not arrived yet; it is then ignored) and
+  // count it in dance_errors_total (the session was counted as OK). Returns whether it applied.
+  bool Abort(const absl::Status& status) {
+    bool finish = false;
+    {
+      absl::MutexLock lock(&mu_);
+      if (finish_issued_ || (closing_ && !close_status_.ok())) return false;
+      closing_ = true;
+      metrics_->CountError(status.code());
+      close_status_ = status.ok() ? absl::InternalError("Abort(OK)") : status;
+      queue_.clear();
+      queued_frames_ = 0;
+      finish = ShouldFinishLocked();
+    }
+    if (finish) reactor_->IssueFinish(ToGrpcStatus(close_status_copy()));
+    return true;
   }
 
   bool WantsRotations() const override { return wants_rotations_.load(std::memory_order_relaxed); }
@@ -111,7 +160,10 @@ class StreamWriter : public FrameSink {
       absl::MutexLock lock(&mu_);
       writing_ = false;
       current_.reset();
-      if (!ok && !closing_) {
+      if (!ok && (!closing_ || close_status_.ok())) {
+        // The client is gone. Even if the session already ended OK, the call did not: it never got the
+        // rest of its updates (an OK close is replaced and counted here; otherwise the session counts it).
+        if (closing_) metrics_->CountError(absl::StatusCode::kCancelled);
         closing_ = true;
         close_status_ = absl::CancelledError("write failed: the client went away");
         queue_.clear();
@@ -162,7 +214,7 @@ class StreamWriter : public FrameSink {
 
   bool ShouldFinishLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
     if (!closing_ || writing_ || in_call_ > 0 || finish_issued_) return false;
-    if (close_status_.ok() && !queue_.empty()) return false;
+    if (close_status_.ok() && (!queue_.empty() || !reads_done_)) return false;
     finish_issued_ = true;
     return true;
   }
@@ -180,6 +232,18 @@ class StreamWriter : public FrameSink {
       finish = ShouldFinishLocked();
     }
     if (finish) reactor_->IssueFinish(ToGrpcStatus(close_status_copy()));
+  }
+
+  // The alarm's callback holds only a weak reference: a writer destroyed first cancels it harmlessly.
+  void ArmHalfCloseGrace() {
+    std::weak_ptr<StreamWriter> weak = this->weak_from_this();
+    absl::MutexLock lock(&mu_);
+    if (finish_issued_ || grace_alarm_ != nullptr) return;
+    grace_alarm_ = std::make_unique<grpc::Alarm>();
+    grace_alarm_->Set(absl::ToChronoTime(absl::Now() + half_close_grace_), [weak](bool fired) {
+      if (!fired) return;
+      if (auto w = weak.lock()) w->ReadsDone();
+    });
   }
 
   absl::Status close_status_copy() const {
@@ -203,6 +267,9 @@ class StreamWriter : public FrameSink {
   bool closing_ ABSL_GUARDED_BY(mu_) = false;
   bool finish_issued_ ABSL_GUARDED_BY(mu_) = false;
   absl::Status close_status_ ABSL_GUARDED_BY(mu_);
+  bool reads_done_ ABSL_GUARDED_BY(mu_) = true;  // false until ReadsDone() for RequireHalfCloseBeforeOk
+  absl::Duration half_close_grace_ ABSL_GUARDED_BY(mu_) = absl::ZeroDuration();
+  std::unique_ptr<grpc::Alarm> grace_alarm_ ABSL_GUARDED_BY(mu_);
 };
 
 }  // namespace dance::server

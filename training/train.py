@@ -3,9 +3,11 @@
     OMP_WAIT_POLICY=PASSIVE /usr/bin/python3 -m training.train            # everything, resumable
     /usr/bin/python3 -m training.train --stages seq,eval,export --run training/runs/default
 
-Stages: data (motion cache, via training.data.prepare if missing), vq (both pose VQ-VAEs), seq (features
-with tempo augmentation, tokens, the Danceba model), eval (losses, music-ablation gap, tempo following),
-export (models/default.dncw + tests/golden/default). Every stage checkpoints into the run directory and is
+Stages: data (motion cache, via training.data.prepare if missing), vq (both pose VQ-VAEs), seq (features,
+the engine's tempo clock (--tempo-ref, default 105 BPM: the dance is learned in tempo-normalised time;
+--tempo-ref 0 = the fixed-rate model with tempo augmentation), tokens, the Danceba model), export
+(models/default.dncw + tests/golden/default), eval (losses, music-ablation gap; tempo following and the
+metric table of the exported model run by the engine). Every stage checkpoints into the run directory and is
 skipped or resumed when its outputs exist; the log is <run>/train.log, curves docs/images/training_*.png.
 """
 from __future__ import annotations
@@ -70,7 +72,7 @@ def load_vqs(run: pathlib.Path):
 def main(argv=None) -> int:
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   ap.add_argument("--run", default=str(REPO / "training" / "runs" / "default"))
-  ap.add_argument("--stages", default="data,vq,seq,eval,export")
+  ap.add_argument("--stages", default="data,vq,seq,export,eval")
   ap.add_argument("--threads", type=int, default=2)
   ap.add_argument("--vq-iters", type=int, default=3000)
   ap.add_argument("--vq-width", type=int, default=128)
@@ -90,6 +92,10 @@ def main(argv=None) -> int:
   ap.add_argument("--shared-mamba", action="store_true")
   ap.add_argument("--tempo-factors", default=",".join(str(f) for f in td.TEMPO_FACTORS))
   ap.add_argument("--vq-run", default=None, help="take the VQ-VAEs from this run directory")
+  ap.add_argument("--vq-model", default=None, help="take the VQ-VAEs from this exported .dncw file")
+  ap.add_argument("--init-model", default=None, help="fine-tune the sequence model of this .dncw file")
+  ap.add_argument("--tempo-ref", type=float, default=105.0,
+                  help="dance in tempo-normalised time at this BPM (engine TempoClock); 0: fixed 30 fps rate")
   ap.add_argument("--out", default=str(REPO / "models" / "default.dncw"))
   ap.add_argument("--eval-songs", type=int, default=8)
   args = ap.parse_args(argv)
@@ -108,17 +114,25 @@ def main(argv=None) -> int:
   vq_run = pathlib.Path(args.vq_run) if args.vq_run else run
   if any(s in stages for s in ("seq", "eval", "export")):
     from training import train_seq
-    vqs = load_vqs(vq_run)
+    if args.vq_model:
+      from training.export import load_models
+      vqs = load_models(args.vq_model)[1]
+    else:
+      vqs = load_vqs(vq_run)
     cfg = SeqConfig(d_model=args.d_model, n_head=args.n_head, codebook_size=vqs["upper"].cfg.codebook_size,
                     music_lookahead_steps=args.lookahead, use_pre=not args.no_pre,
                     use_gate=not args.no_gate, shared_mamba=args.shared_mamba, n_styles=len(td.STYLES))
     factors = tuple(float(f) for f in args.tempo_factors.split(","))
     if "seq" in stages:
       train_seq.stage_seq(args, cfg, vqs, factors, run, log)
-    if "eval" in stages:
+    # Fixed-rate models are evaluated from the checkpoint (torch generator) and the report goes into the
+    # export; tempo-normalised ones are evaluated from the exported file by the engine.
+    if "eval" in stages and args.tempo_ref <= 0:
       train_seq.stage_eval(args, vqs, run, log)
     if "export" in stages:
       train_seq.stage_export(args, vqs, run, log)
+    if "eval" in stages and args.tempo_ref > 0:
+      train_seq.stage_eval(args, vqs, run, log)
   log(f"done in {(time.time() - t0) / 60:.1f} min")
   return 0
 

@@ -20,7 +20,7 @@ import numpy as np
 from training.data import representation as rep
 from training.eval.music import stretch_audio
 from training.eval.tempo import time_stretch_motion
-from training.features.extract import extract_features
+from training.features.extract import extract_clock, extract_features
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 MOTION_CACHE = REPO / "training" / "cache" / "motion"
@@ -91,6 +91,64 @@ def load_clip(motion_id: str, factor: float = 1.0, with_music: bool = True) -> C
     clip.upper, clip.lower, clip.positions = clip.upper[:t], clip.lower[:t], clip.positions[:t]
     clip.features, clip.pre = feats[:t].astype(np.float32), pre[:t].astype(np.float32)
     clip.audio_path, clip.audio_offset_s = audio, offset
+  return clip
+
+
+def style_reference_tempi(ids: list[str], default_bpm: float) -> dict[str, float]:
+  """Each style's typical tempo on the engine's tracker, from the paired songs in `ids`: the circular mean
+  of log2(song tempo) modulo 1 (the song tempo is the tracker's median running tempo, whatever octave it
+  locked to), in the octave [75, 150). Styles without paired songs get `default_bpm`. Every song of a style
+  is then warped with the same reference, so its octave folds the same way at any tempo near the typical
+  one (docs/model.md section 1)."""
+  by_style: dict[str, list[float]] = {}
+  for mid in ids:
+    z = np.load(MOTION_CACHE / f"{mid}.npz")
+    if not str(z["audio_path"]):
+      continue
+    tempo = extract_features(str(z["audio_path"]), cache_dir=FEATURE_CACHE)["summary"]["tempo_median_bpm"]
+    by_style.setdefault(str(z["style"]), []).append(float(tempo))
+  refs = {}
+  for style in STYLES:
+    t = by_style.get(style)
+    if not t:
+      refs[style] = float(default_bpm)
+      continue
+    phase = np.angle(np.exp(2j * np.pi * (np.log2(t) % 1.0)).mean()) / (2 * np.pi) % 1.0
+    r = 2.0 ** (6.0 + phase)  # in [64, 128)
+    refs[style] = float(round(r * 2.0 if r < 75.0 else r, 2))
+  return refs
+
+
+def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int = 4) -> Clip:
+  """A paired dance on the tempo-normalised timeline of the engine's TempoClock (docs/model.md section 8):
+  warped frame j takes the features and PRE of its source frame and the motion at its real position
+  (linear interpolation of joint positions), so every song plays at `reference_bpm`. The clip starts at
+  the first step boundary (a multiple of frames_per_step on the song's warped timeline, as the engine's
+  steps) at or after the dance's first frame and ends where the dance or the music ends."""
+  z = np.load(MOTION_CACHE / f"{motion_id}.npz")
+  pos = z["positions"].astype(np.float64)
+  audio = str(z["audio_path"])
+  if not pathlib.Path(audio).is_absolute():
+    audio = str((REPO / audio).resolve())
+  m = extract_features(audio, cache_dir=FEATURE_CACHE)
+  clock = extract_clock(audio, reference_bpm, cache_dir=FEATURE_CACHE).astype(np.float64)
+  n0 = int(round(float(z["audio_offset_s"]) * 30))
+  src, x = clock[:, 0].astype(np.int64), clock[:, 1] - n0   # x: position in the dance's own frames
+  ok = np.flatnonzero((x >= 0) & (x <= len(pos) - 1) & (src < len(m["features"])))
+  if len(ok) < 2 * frames_per_step:
+    raise ValueError(f"{motion_id}: too short on the warped timeline")
+  j0 = int(-(-ok[0] // frames_per_step) * frames_per_step)
+  sel = np.arange(j0, ok[-1] + 1)
+  xs = x[sel]
+  i = np.minimum(np.floor(xs).astype(np.int64), len(pos) - 2)
+  w = (xs - i)[:, None, None]
+  warped = pos[i] * (1 - w) + pos[i + 1] * w
+  upper, lower = rep.encode(warped)
+  clip = Clip(motion_id, 1.0, STYLES.index(str(z["style"])), upper.astype(np.float32), lower.astype(np.float32),
+              warped.astype(np.float32))
+  clip.features = m["features"][src[sel]].astype(np.float32)
+  clip.pre = m["pre"][src[sel]].astype(np.float32)
+  clip.audio_path, clip.audio_offset_s = audio, float(z["audio_offset_s"])
   return clip
 
 

@@ -39,8 +39,13 @@ def tokenize(clip: td.Clip, vqs) -> dict:
   return out
 
 
-def build_tokens(ids, factors, vqs, log, cache: pathlib.Path | None = None) -> list[dict]:
-  """Tokens of every (clip, factor); cached in `cache` (a file next to the VQ-VAE checkpoints) if given."""
+def build_tokens(ids, factors, vqs, log, cache: pathlib.Path | None = None,
+                 style_refs: dict[str, float] | None = None) -> list[dict]:
+  """Tokens of every (clip, factor); cached in `cache` (a file next to the VQ-VAE checkpoints) if given.
+  style_refs: clips on the engine's tempo-normalised timeline (train_data.load_warped_clip) at their
+  style's reference tempo, one per song (the clock removes the tempo, so tempo factors are not used)."""
+  if style_refs:
+    factors = (1.0,)
   if cache is not None and cache.is_file():
     toks = torch.load(cache)
     if sorted({t["id"] for t in toks}) == sorted(ids) and sorted({t["factor"] for t in toks}) == sorted(factors):
@@ -48,7 +53,12 @@ def build_tokens(ids, factors, vqs, log, cache: pathlib.Path | None = None) -> l
   toks = []
   for i in tqdm(ids, desc="tokens", mininterval=10):
     for f in factors:
-      toks.append(tokenize(td.load_clip(i, f), vqs))
+      if style_refs:
+        style = str(np.load(td.MOTION_CACHE / f"{i}.npz")["style"])
+        clip = td.load_warped_clip(i, style_refs[style])
+      else:
+        clip = td.load_clip(i, f)
+      toks.append(tokenize(clip, vqs))
   log(f"tokens: {len(toks)} clips, {sum(len(t['upper']) for t in toks)} steps")
   if cache is not None:
     torch.save(toks, cache)
@@ -96,6 +106,25 @@ def make_batch(toks, cfg: SeqConfig, rng, batch=BATCH, steps=STEPS, code_mask=0.
   return (f(mus), f(pres), f(us, torch.long), f(ls, torch.long), f(sw)), (f(tu, torch.long), f(tl, torch.long))
 
 
+def style_refs_of(args, run: pathlib.Path, log) -> dict[str, float] | None:
+  """Per-style reference tempi of a tempo-normalised run (None for a fixed-rate run), computed once from
+  the training songs and kept in <run>/style_reference_bpm.json (the export writes them into the model)."""
+  if args.tempo_ref <= 0:
+    return None
+  path = run / "style_reference_bpm.json"
+  if path.is_file():
+    return json.loads(path.read_text())
+  refs = td.style_reference_tempi(td.paired_ids(td.load_split()["train"]), args.tempo_ref)
+  log(f"style reference tempi (BPM): {json.dumps(refs)}")
+  run.mkdir(parents=True, exist_ok=True)
+  path.write_text(json.dumps(refs))
+  return refs
+
+
+def warp_tag(refs: dict[str, float]) -> str:
+  return "warp_" + "_".join(f"{refs[s]:g}" for s in sorted(refs))
+
+
 def loss_of(model, inputs, targets) -> torch.Tensor:
   lu, ll = model(*inputs)
   return 0.5 * (F.cross_entropy(lu.flatten(0, 1), targets[0].flatten()) +
@@ -125,17 +154,42 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
   train_ids = td.paired_ids(split["train"])
   val_ids = td.paired_ids(split["validation"])
   vq_dir = pathlib.Path(args.vq_run) if args.vq_run else run
-  tag = "_".join(f"{f:g}" for f in factors)
-  train_toks = build_tokens(train_ids, factors, vqs, log, vq_dir / f"tokens_train_{tag}.pt")
-  val_toks = build_tokens(val_ids, (1.0,), vqs, log, vq_dir / "tokens_val.pt")
+  refs = style_refs_of(args, run, log)
+  tag = warp_tag(refs) if refs else "_".join(f"{f:g}" for f in factors)
+  vq_dir.mkdir(parents=True, exist_ok=True)
+  train_toks = build_tokens(train_ids, factors, vqs, log, vq_dir / f"tokens_train_{tag}.pt", refs)
+  val_toks = build_tokens(val_ids, (1.0,), vqs, log, vq_dir / f"tokens_val_{tag}.pt", refs)
   torch.manual_seed(0)
   rng = np.random.default_rng(0)
-  model = Danceba(cfg)
-  base = [t for t in train_toks if t["factor"] == 1.0]
-  allm = np.concatenate([t["music"] for t in base])
-  with torch.no_grad():
-    model.music_mean.copy_(torch.from_numpy(allm.mean(0)))
-    model.music_std.copy_(torch.from_numpy(np.maximum(allm.std(0), 1e-2)))
+  if args.init_model:
+    # Fine-tune an exported model (its music normalisation and its PRE BatchNorm, folded, stay as they are).
+    import dataclasses
+    from training.export import load_models
+    parent = load_models(args.init_model)[0]
+    # Ablation flags (and the music shift) override the parent's architecture; every parameter whose name
+    # and shape still match is copied, the rest starts fresh (fine-tuned ablations from one parent).
+    want = dataclasses.replace(parent.cfg, use_pre=parent.cfg.use_pre and not args.no_pre,
+                               use_gate=parent.cfg.use_gate and not args.no_gate,
+                               shared_mamba=parent.cfg.shared_mamba or args.shared_mamba,
+                               music_lookahead_steps=args.lookahead or parent.cfg.music_lookahead_steps)
+    if want == parent.cfg:
+      model = parent
+    else:
+      model = Danceba(want)
+      mine = model.state_dict()
+      theirs = parent.state_dict()
+      copied = {k: v for k, v in theirs.items() if k in mine and mine[k].shape == v.shape}
+      model.load_state_dict(copied, strict=False)
+      log(f"seq: architecture changed from the parent ({len(copied)}/{len(mine)} tensors copied)")
+    cfg = model.cfg
+    log(f"seq: initialised from {args.init_model}")
+  else:
+    model = Danceba(cfg)
+    base = [t for t in train_toks if t["factor"] == 1.0]
+    allm = np.concatenate([t["music"] for t in base])
+    with torch.no_grad():
+      model.music_mean.copy_(torch.from_numpy(allm.mean(0)))
+      model.music_std.copy_(torch.from_numpy(np.maximum(allm.std(0), 1e-2)))
   n_params = sum(p.numel() for p in model.parameters())
   log(f"seq: {n_params} parameters, cfg {json.dumps(cfg.to_dict())}")
   opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=0.05)
@@ -148,7 +202,13 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
     history, start, elapsed = ck["history"], ck["iter"], ck.get("elapsed", 0.0)
     rng = np.random.default_rng(start)
   iters = args.seq_iters
-  model.train()
+
+  def train_mode():
+    model.train()
+    if args.init_model and cfg.use_pre:
+      model.pre.bn.eval()  # keep the folded statistics (identity) of the exported model
+
+  train_mode()
   t_start = time.time() - elapsed
 
   def save(it):
@@ -170,6 +230,7 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
       history.append({"iter": it, "loss": float(loss)})
     if it % args.val_every == args.val_every - 1 or it == iters - 1:
       v = validation(model, val_toks, cfg)
+      train_mode()
       history.append(dict(v, iter=it + 1, minutes=(time.time() - t_start) / 60))
       log(f"seq iter {it + 1}/{iters} train {float(loss):.3f} {json.dumps(v)}")
       save(it + 1)
@@ -190,9 +251,39 @@ def load_seq(run: pathlib.Path) -> Danceba:
 
 
 def stage_eval(args, vqs, run: pathlib.Path, log) -> dict:
+  if args.tempo_ref > 0:
+    return stage_engine_eval(args, vqs, run, log)
   from training.train_eval import evaluate_model
   model = load_seq(run)
   report = evaluate_model(model, vqs, run, log, n_songs=args.eval_songs)
+  (run / "eval_report.json").write_text(json.dumps(report, indent=1))
+  return report
+
+
+def stage_engine_eval(args, vqs, run: pathlib.Path, log) -> dict:
+  """Tempo-normalised models run on the engine's warped timeline, which the torch generator does not
+  reproduce: the losses come from the warped validation tokens, tempo following and the metric table
+  from the exported file run by the engine itself (`dance-generate`), i.e. the product."""
+  from training.eval import engine_eval, engine_tempo
+  model = load_seq(run)
+  split = td.load_split()
+  refs = style_refs_of(args, run, log)
+  val_toks = build_tokens(td.paired_ids(split["validation"]), (1.0,), vqs, log,
+                          (pathlib.Path(args.vq_run) if args.vq_run else run) / f"tokens_val_{warp_tag(refs)}.pt",
+                          refs)
+  report = {"losses": validation(model, val_toks, model.cfg, n_batches=12)}
+  log(f"eval losses: {json.dumps(report['losses'])}")
+  if not pathlib.Path(args.out).is_file():
+    log(f"eval: {args.out} does not exist yet (run the export stage first); engine evaluation skipped")
+  else:
+    engine_tempo.main(["--model", args.out, "--out", str(run / "engine_tempo.json")])
+    report["tempo"] = json.loads((run / "engine_tempo.json").read_text())
+    log(f"eval tempo-following (engine) mean ratio {report['tempo']['mean_ratio']}")
+    try:
+      engine_eval.main(["--model", args.out, "--out-dir", str(run / "engine")])
+      report["metrics"] = json.loads((run / "engine" / "metrics.json").read_text())
+    except Exception as e:  # the metric table needs librosa (the .venv); report, do not fail the run
+      log(f"eval metrics skipped: {e!r}")
   (run / "eval_report.json").write_text(json.dumps(report, indent=1))
   return report
 
@@ -203,7 +294,10 @@ def stage_export(args, vqs, run: pathlib.Path, log) -> None:
   model = load_seq(run)
   out = pathlib.Path(args.out)
   extra = {"model_id": out.stem + "-" + time.strftime("%Y%m%d"), "features": FEATURES_META,
-           "skeleton": skeleton_meta(), "styles": td.STYLES, "training": {"run": str(run)}}
+           "skeleton": skeleton_meta(), "styles": td.STYLES, "training": {"run": str(run)},
+           "time_base": ({"kind": "tempo", "reference_bpm": float(args.tempo_ref),
+                          "style_reference_bpm": style_refs_of(args, run, log)} if args.tempo_ref > 0
+                         else {"kind": "fixed"})}
   for name in ("vq_report.json", "eval_report.json"):
     if (run / name).is_file():
       extra["training"][name.removesuffix(".json")] = json.loads((run / name).read_text())

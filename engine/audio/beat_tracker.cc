@@ -69,24 +69,35 @@ double Wrap(double x) { return x - std::floor(x); }  // to [0, 1)
 
 // Sum over harmonics h (below 0.45 cycles per frame) of |sum_a y_a exp(-i 2 pi h f a)|, f = bpm /
 // 1800.
+// The four harmonics' recurrences are independent: they advance together in 4-wide vectors (AVX2 with
+// -march=x86-64-v3, two SSE2 halves otherwise). Each lane does exactly the scalar recurrence's
+// operations in the same order (no FMA: -ffp-contract=off), so the sum is bit-identical to computing
+// the harmonics one after another; only the latency chains overlap.
 double HarmonicSum(const std::array<float, kTempoWindowFrames>& y, double bpm) {
-  double total = 0.0;
+  using V4 = double __attribute__((vector_size(32)));
+  int harmonics = 0;
+  V4 cr = {1.0, 1.0, 1.0, 1.0}, ci = {0.0, 0.0, 0.0, 0.0};
   for (int h = 1; h <= 4; ++h) {
     const double f = h * bpm / kFramesPerMinute;
     if (f > 0.45) break;
+    harmonics = h;
     // Real arithmetic: std::complex multiplication calls __muldc3 (NaN/Inf handling) without
     // fast-math.
-    const double cr = std::cos(2.0 * kPi * f), ci = -std::sin(2.0 * kPi * f);
-    double rr = 1.0, ri = 0.0, ar = 0.0, ai = 0.0;
-    for (int a = 0; a < kTempoWindowFrames; ++a) {
-      ar += y[a] * rr;
-      ai += y[a] * ri;
-      const double nr = rr * cr - ri * ci;
-      ri = rr * ci + ri * cr;
-      rr = nr;
-    }
-    total += std::sqrt(ar * ar + ai * ai);
+    cr[h - 1] = std::cos(2.0 * kPi * f);
+    ci[h - 1] = -std::sin(2.0 * kPi * f);
   }
+  V4 rr = {1.0, 1.0, 1.0, 1.0}, ri = {0.0, 0.0, 0.0, 0.0}, ar = ri, ai = ri;
+  for (int a = 0; a < kTempoWindowFrames; ++a) {
+    const double ya = y[a];
+    const V4 v = {ya, ya, ya, ya};
+    ar += v * rr;
+    ai += v * ri;
+    const V4 nr = rr * cr - ri * ci;
+    ri = rr * ci + ri * cr;
+    rr = nr;
+  }
+  double total = 0.0;
+  for (int h = 0; h < harmonics; ++h) total += std::sqrt(ar[h] * ar[h] + ai[h] * ai[h]);
   return total;
 }
 
@@ -126,9 +137,11 @@ void BeatTracker::Update(float onset, BeatTrackerOutput* out) {
 
   // Trailing envelope by age (0 = this frame); frames before the stream start are 0.
   double mean = 0.0;
+  const int newest = static_cast<int>((s.frames - 1) % kTempoWindowFrames);
+  const int available = static_cast<int>(std::min<int64_t>(s.frames, kTempoWindowFrames));
   for (int a = 0; a < kTempoWindowFrames; ++a) {
-    const int64_t n = s.frames - 1 - a;
-    y_[a] = n >= 0 ? s.onset_ring[n % kTempoWindowFrames] : 0.0f;
+    const int slot = newest - a < 0 ? newest - a + kTempoWindowFrames : newest - a;
+    y_[a] = a < available ? s.onset_ring[slot] : 0.0f;
     mean += y_[a];
   }
   mean /= kTempoWindowFrames;
@@ -179,8 +192,18 @@ void BeatTracker::Update(float onset, BeatTrackerOutput* out) {
   }
   // Hysteresis: a tempo near the running one wins unless another is clearly stronger.
   double best_value = -1.0;
+  // |log(ratio)| < 0.04 without a log per grid tempo: ratios clearly inside or outside
+  // (exp(+-0.04), with a 1e-9 relative margin, far above log's rounding error) are decided directly,
+  // only the rare ones at the boundary evaluate the log. Same decisions as the log everywhere.
+  static const double kNearLo = std::exp(-0.04), kNearHi = std::exp(0.04);
+  auto is_near = [&s](double grid_bpm) {
+    const double ratio = grid_bpm / s.tempo_bpm;
+    if (ratio < kNearLo * (1.0 - 1e-9) || ratio > kNearHi * (1.0 + 1e-9)) return false;
+    if (ratio > kNearLo * (1.0 + 1e-9) && ratio < kNearHi * (1.0 - 1e-9)) return true;
+    return std::fabs(std::log(ratio)) < 0.04;
+  };
   for (int g = 0; g < kTempoGridSize; ++g) {
-    const bool near = s.tempo_locked && std::fabs(std::log(t.grid_bpm[g] / s.tempo_bpm)) < 0.04;
+    const bool near = s.tempo_locked && is_near(t.grid_bpm[g]);
     const double value = s.score[g] * (near ? kContinuityBonus : 1.0);
     if (value > best_value) {
       best_value = value;

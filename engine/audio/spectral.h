@@ -26,6 +26,8 @@ struct SpectralTables {
   std::array<std::vector<float>, kNumMelBands> mel_weights;
   std::vector<float> dct;     // (kNumMfcc, kNumMelBands), row-major, DCT-II orthonormal
   std::vector<float> chroma;  // (kNumChroma, kFftBins), row-major
+  int chroma_begin = 0;       // bins [chroma_begin, chroma_end) hold every nonzero chroma weight
+  int chroma_end = 0;
   std::array<float, kFftBins> bin_hz;
 };
 const SpectralTables& GetSpectralTables();

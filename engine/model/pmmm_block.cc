@@ -58,18 +58,27 @@ void PmmmBlock::Step(ColsRef x, absl::Span<SequenceState* const> lanes, int stat
   auto dt = ws.dt.leftCols(n);
   MatMul(dt_proj_, dbc.topRows(r), dt);
   dt.colwise() += dt_bias_;
-  dt = dt.unaryExpr([](float v) { return Softplus(v); });
+  SoftplusInPlace(dt);
   auto y = ws.y.leftCols(n);
+  // Selective scan, one lane at a time, one state column (di contiguous floats) at a time:
+  //   hs(:, s) = exp(dt * A(:, s)) * hs(:, s) + (dt * x) B_s;   y = sum_s hs(:, s) C_s + D * x.
+  Eigen::ArrayXf& dtx = ws.dtx;  // (di) scratch
   for (int b = 0; b < n; ++b) {
     Eigen::MatrixXf& hs = lanes[b]->ssm[state];  // (di, ds)
-    const auto dt_b = dt.col(b);
-    const auto c = conv.col(b);
-    ws.decay = (neg_a_.array().colwise() * dt_b.array()).exp();
-    hs.array() *= ws.decay.array();
-    hs.noalias() += dt_b.cwiseProduct(c) * dbc.col(b).segment(r, ds).transpose();
-    y.col(b).noalias() = hs * dbc.col(b).segment(r + ds, ds);
-    y.col(b) += d_skip_.cwiseProduct(c);
-    y.col(b).array() *= xz.col(b).tail(di).unaryExpr([](float v) { return Silu(v); }).array();
+    const auto dt_b = dt.col(b).array();
+    const auto c = conv.col(b).array();
+    const auto bc = dbc.col(b);
+    dtx = dt_b * c;
+    auto yb = y.col(b).array();
+    yb.setZero();
+    for (int s = 0; s < ds; ++s) {
+      auto hcol = hs.col(s).array();
+      hcol = hcol * (neg_a_.col(s).array() * dt_b).exp() + dtx * bc(r + s);
+      yb += hcol * bc(r + ds + s);
+    }
+    yb += d_skip_.array() * c;
+    auto z = xz.col(b).tail(di).array();
+    yb *= z / (1.0f + (-z).exp());
   }
   auto delta = ws.stream_h.leftCols(n);  // h is no longer needed
   MatMul(out_proj_, y, delta);

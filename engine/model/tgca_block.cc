@@ -1,6 +1,12 @@
 #include "engine/model/tgca_block.h"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
+
+#if defined(__AVX2__) && defined(__FMA__)
+#include <immintrin.h>
+#endif
 
 #include "absl/strings/str_cat.h"
 
@@ -68,7 +74,7 @@ void TgcaBlock::Step(absl::Span<SequenceState* const> lanes, int cache, int styl
   if (c_.use_gate) {
     SiluInPlace(zg);
   } else {
-    zg.topRows(d) = zg.topRows(d).unaryExpr([](float v) { return Silu(v); });
+    SiluInPlace(zg.topRows(d));
     zg.bottomRows(d).setOnes();
   }
   MatMul(w_qkv_, zg.topRows(d), ws.qkv.leftCols(t));
@@ -85,7 +91,9 @@ void TgcaBlock::Step(absl::Span<SequenceState* const> lanes, int cache, int styl
 }
 
 // Writes this step's keys and values into the lane's ring buffer, then attends the lane's 3 queries to
-// the valid window. Scores are computed over the whole ring and masked, which keeps the loops simple.
+// the valid window. Scores are computed over the whole ring and masked, which keeps the step independent of
+// how full the cache is. The products are tiny ((3W x d_head) by (d_head x 3)), so they are written out
+// directly (one pass over each key and value column for all 3 queries) instead of going through GEMM.
 void TgcaBlock::Attend(SequenceState& lane, int cache, int lane_index, Workspace& ws) const {
   const int d = c_.d_model, dh = c_.d_head(), w = c_.attn_window;
   const int64_t t = lane.step;
@@ -97,18 +105,25 @@ void TgcaBlock::Attend(SequenceState& lane, int cache, int lane_index, Workspace
   values.middleCols(3 * slot, 3) = qkv.middleRows(2 * d, d);
   const int valid_steps = static_cast<int>(std::min<int64_t>(t + 1, w));
   const float inv_sqrt = 1.0f / std::sqrt(static_cast<float>(dh));
+  const float neg_inf = -std::numeric_limits<float>::infinity();
   auto out = ws.attn.middleCols(3 * lane_index, 3);
+  const Eigen::Index q_stride = ws.qkv.outerStride(), out_stride = ws.attn.outerStride();
+  auto scores = ws.scores.topRows(3 * w);  // (3W, 3), column q = query (stream) q
   for (int head = 0; head < c_.n_heads; ++head) {
-    auto scores = ws.scores.topRows(3 * w);
-    scores.noalias() = keys.middleRows(head * dh, dh).transpose() * qkv.middleRows(head * dh, dh);
-    scores *= inv_sqrt;
+    const int r0 = head * dh;
+    const float* q0 = qkv.data() + r0;
+    const float slope = slopes_[head];
     for (int s = 0; s < w; ++s) {
       // Ring slot s holds step t' = t - ((slot - s) mod W); distance t - t' in steps.
       const int dist = (slot - s + w) % w;
-      if (dist >= valid_steps) {
-        scores.middleRows(3 * s, 3).setConstant(-std::numeric_limits<float>::infinity());
-      } else {
-        scores.middleRows(3 * s, 3).array() -= slopes_[head] * static_cast<float>(dist);
+      for (int j = 3 * s; j < 3 * s + 3; ++j) {
+        if (dist >= valid_steps) {
+          for (int q = 0; q < 3; ++q) scores(j, q) = neg_inf;
+          continue;
+        }
+        float dot[3];
+        Dot3(keys.col(j).data() + r0, q0, q_stride, dh, dot);
+        for (int q = 0; q < 3; ++q) scores(j, q) = dot[q] * inv_sqrt - slope * static_cast<float>(dist);
       }
     }
     for (int q = 0; q < 3; ++q) {
@@ -117,7 +132,36 @@ void TgcaBlock::Attend(SequenceState& lane, int cache, int lane_index, Workspace
       col = (col.array() - m).exp();
       col /= col.sum();
     }
-    out.middleRows(head * dh, dh).noalias() = values.middleRows(head * dh, dh) * scores;
+    // out(:, q) = sum_j values(:, j) p(j, q) over this head's rows.
+    float* o = out.data() + r0;
+    for (int q = 0; q < 3; ++q) std::fill_n(o + q * out_stride, dh, 0.0f);
+    int i0 = 0;
+#if defined(__AVX2__) && defined(__FMA__)
+    // 8 rows at a time, the three outputs held in registers over the whole ring.
+    for (; i0 + 8 <= dh; i0 += 8) {
+      __m256 a0 = _mm256_setzero_ps(), a1 = _mm256_setzero_ps(), a2 = _mm256_setzero_ps();
+      for (int j = 0; j < 3 * w; ++j) {
+        const __m256 v = _mm256_loadu_ps(values.col(j).data() + r0 + i0);
+        a0 = _mm256_fmadd_ps(_mm256_set1_ps(scores(j, 0)), v, a0);
+        a1 = _mm256_fmadd_ps(_mm256_set1_ps(scores(j, 1)), v, a1);
+        a2 = _mm256_fmadd_ps(_mm256_set1_ps(scores(j, 2)), v, a2);
+      }
+      _mm256_storeu_ps(o + i0, a0);
+      _mm256_storeu_ps(o + out_stride + i0, a1);
+      _mm256_storeu_ps(o + 2 * out_stride + i0, a2);
+    }
+#endif
+    if (i0 < dh) {
+      for (int j = 0; j < 3 * w; ++j) {
+        const float* v = values.col(j).data() + r0;
+        const float p0 = scores(j, 0), p1 = scores(j, 1), p2 = scores(j, 2);
+        for (int i = i0; i < dh; ++i) {
+          o[i] += p0 * v[i];
+          o[out_stride + i] += p1 * v[i];
+          o[2 * out_stride + i] += p2 * v[i];
+        }
+      }
+    }
   }
 }
 

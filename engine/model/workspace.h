@@ -39,7 +39,7 @@ struct Workspace {
   Eigen::MatrixXf dbc;        // (dt_rank + 2 d_state, L)
   Eigen::MatrixXf dt;         // (d_inner, L)
   Eigen::MatrixXf y;          // (d_inner, L)
-  Eigen::MatrixXf decay;      // (d_inner, d_state) one lane's exp(dt * A)
+  Eigen::ArrayXf dtx;         // (d_inner) one lane's dt * x
   Eigen::MatrixXf logits_u;   // (K, L)
   Eigen::MatrixXf logits_l;   // (K, L)
   std::vector<SequenceState*> states;  // the lanes of the current step
@@ -74,7 +74,7 @@ struct Workspace {
     dbc.resize(c.dt_rank() + 2 * c.d_state, lanes);
     dt.resize(di, lanes);
     y.resize(di, lanes);
-    decay.resize(di, c.d_state);
+    dtx.resize(di);
     logits_u.resize(c.codebook_size, lanes);
     logits_l.resize(c.codebook_size, lanes);
     states.reserve(lanes);

@@ -28,17 +28,39 @@ inline float Silu(float x) { return x / (1.0f + std::exp(-x)); }
 // torch.nn.functional.softplus with beta 1, threshold 20.
 inline float Softplus(float x) { return x > 20.0f ? x : std::log1p(std::exp(x)); }
 
-// In place, element-wise.
+// Element-wise, vectorised (Eigen's packet exp/log1p; within a few ulp of the scalar functions above).
+// SiLU(x) = x / (1 + exp(-x)). `out` may be `x`.
+template <typename In, typename Out>
+void SiluTo(const Eigen::ArrayBase<In>& x, Eigen::ArrayBase<Out>& out) {
+  out.derived() = x / (1.0f + (-x).exp());
+}
 template <typename Derived>
 void SiluInPlace(Eigen::MatrixBase<Derived>& x) {
-  x = x.unaryExpr([](float v) { return Silu(v); });
+  auto a = x.array();
+  SiluTo(a, a);
+}
+template <typename Derived>
+void SiluInPlace(Eigen::MatrixBase<Derived>&& x) {
+  SiluInPlace(x);
+}
+// Softplus as torch (beta 1, threshold 20): x > 20 ? x : log1p(exp(x)).
+template <typename Derived>
+void SoftplusInPlace(Eigen::MatrixBase<Derived>& x) {
+  auto a = x.array();
+  // max(x, .) instead of a select (not vectorised by Eigen 3.4): for x > 20, log1p(exp(20)) rounds to 20 < x;
+  // below, log1p(exp(x)) > x (up to a rounding ulp near 20).
+  a = a.max(a.min(20.0f).exp().log1p());
 }
 
-// out = w * x. For a few columns (one session's tokens) it runs one matrix-vector product per column, which
-// reads the weights in place; for more it is one GEMM, whose packing cost is then shared by many columns.
-// (Eigen's GEMM repacks the whole weight matrix on every call, which dominated single-session steps.)
+// out = w * x. For a few columns (one session's tokens, one lane's decoder frames) a register-blocked
+// kernel reads each weight row once for all columns (AVX2+FMA builds; a matrix-vector product per column
+// otherwise); for more it is one GEMM, whose packing cost is then shared by many columns. (Eigen's GEMM
+// repacks the whole weight matrix on every call, which dominated single-session steps.)
 void MatMul(const RowMatrix& w, const ConstColsRef& x, ColsRef out);
-inline constexpr int kGemvMaxColumns = 4;
+inline constexpr int kGemvMaxColumns = 8;
+
+// out[q] = sum_i a[i] * b[q * b_stride + i] for q = 0, 1, 2 (three dot products sharing `a`).
+void Dot3(const float* a, const float* b, Eigen::Index b_stride, int n, float out[3]);
 
 // out(:, j) = x(:, j) / sqrt(mean(x(:, j)^2) + eps) * weight. `out` may alias `x`.
 void RmsNorm(const ConstColsRef& x, const Eigen::VectorXf& weight, float eps, ColsRef out);

@@ -1,9 +1,12 @@
 #include "engine/runtime/model.h"
 
+#include <cmath>
+
 #include "absl/status/status.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "engine/audio/feature_layout.h"
+#include "engine/audio/tempo_clock.h"
 #include "engine/nn/status_macros.h"
 
 namespace dance::engine {
@@ -41,6 +44,41 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
     return absl::InvalidArgumentError(absl::StrCat("weights metadata: ", m->styles_.size(),
                                                    " style names but n_styles = ", c.n_styles));
   }
+  if (m->metadata_.contains("time_base")) {
+    const nlohmann::json& tb = m->metadata_["time_base"];
+    const std::string kind = tb.is_object() ? tb.value("kind", std::string()) : std::string();
+    if (kind == "tempo") {
+      const double ref = tb.value("reference_bpm", 0.0);
+      if (!(ref >= 30.0 && ref <= 300.0)) {
+        return absl::InvalidArgumentError(absl::StrCat("weights metadata: time_base.reference_bpm must be in "
+                                                       "30..300 BPM, got ", ref));
+      }
+      m->tempo_reference_bpm_ = ref;
+      m->style_reference_bpm_.assign(m->styles_.size(), ref);
+      if (tb.contains("style_reference_bpm")) {
+        const nlohmann::json& per = tb["style_reference_bpm"];
+        if (!per.is_object()) {
+          return absl::InvalidArgumentError("weights metadata: time_base.style_reference_bpm must be an object");
+        }
+        for (const auto& [name, value] : per.items()) {
+          absl::StatusOr<int> row = m->StyleIndex(name);
+          if (!row.ok() || *row >= static_cast<int>(m->styles_.size())) {
+            return absl::InvalidArgumentError(
+                absl::StrCat("weights metadata: time_base.style_reference_bpm names unknown style '", name, "'"));
+          }
+          const double r = value.is_number() ? value.get<double>() : 0.0;
+          if (!(r >= 30.0 && r <= 300.0)) {
+            return absl::InvalidArgumentError(absl::StrCat(
+                "weights metadata: time_base.style_reference_bpm['", name, "'] must be in 30..300 BPM"));
+          }
+          m->style_reference_bpm_[*row] = r;
+        }
+      }
+    } else if (kind != "fixed") {
+      return absl::InvalidArgumentError(
+          absl::StrCat("weights metadata: unknown time_base '", tb.dump(), "' (expected kind fixed or tempo)"));
+    }
+  }
   return std::shared_ptr<const Model>(std::move(m));
 }
 
@@ -54,7 +92,10 @@ absl::StatusOr<int> Model::StyleIndex(const std::string& name) const {
 }
 
 double Model::LatencyMs() const {
-  return config().music_lookahead_steps * 1000.0 * config().frames_per_step / audio::kFrameRate;
+  const double fixed = config().music_lookahead_steps * 1000.0 * config().frames_per_step / audio::kFrameRate;
+  // Warped steps last 1 / rate real frames; the slowest rate the clock can pick is 1 / (sqrt 2 (1 + h)).
+  if (tempo_reference_bpm_ > 0.0) return fixed * std::sqrt(2.0) * (1.0 + audio::TempoClockOptions().octave_hysteresis);
+  return fixed;
 }
 
 absl::StatusOr<std::shared_ptr<const Model>> LoadModel(const std::string& path) {

@@ -36,6 +36,15 @@ class Model {
   absl::StatusOr<int> StyleIndex(const std::string& name) const;
   // Declared latency: music_lookahead_steps * 133.3 ms (the feature extractor's lookahead is 0).
   double LatencyMs() const;
+  // Reference tempo (BPM) of a model that dances in tempo-normalised time (metadata
+  // "time_base": {"kind": "tempo", "reference_bpm": R, "style_reference_bpm": {style: R_s, ...}});
+  // 0 for a fixed-rate model.
+  double tempo_reference_bpm() const { return tempo_reference_bpm_; }
+  // The reference of style row `row` (R_s, or R for styles without one and for "none").
+  double StyleReferenceBpm(int row) const {
+    return row >= 0 && row < static_cast<int>(style_reference_bpm_.size()) ? style_reference_bpm_[row]
+                                                                            : tempo_reference_bpm_;
+  }
   // The header metadata, for tools that copy it (feature config, training info).
   const nlohmann::json& metadata() const { return metadata_; }
 
@@ -50,6 +59,8 @@ class Model {
   Skeleton skeleton_;
   std::vector<std::string> styles_;
   nlohmann::json metadata_;
+  double tempo_reference_bpm_ = 0.0;
+  std::vector<double> style_reference_bpm_;  // per style row (n_styles)
 };
 
 // Loads and validates `path`.

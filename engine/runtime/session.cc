@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <tuple>
 
 #include "absl/strings/str_cat.h"
 #include "engine/nn/status_macros.h"
@@ -43,8 +44,18 @@ absl::StatusOr<std::unique_ptr<Session>> Session::Create(std::shared_ptr<const M
   s->lower_state_ = s->model_->lower_decoder().NewState();
   s->guided_u_.resize(k);
   s->guided_l_.resize(k);
+  s->warp_ = s->NewWarpState();
   DANCE_RETURN_IF_ERROR(s->ApplyStyle(options.style));
   return s;
+}
+
+WarpState Session::NewWarpState() const {
+  WarpState w;
+  w.clock = audio::TempoClock({.reference_bpm = warped() ? style_reference_bpm_ : 120.0});
+  // The first decoded period is period 1; real frames start being emitted at the same index.
+  w.first_pose = model_->config().frames_per_step;
+  w.next_output = model_->config().frames_per_step;
+  return w;
 }
 
 absl::Status Session::ApplyStyle(const std::vector<std::pair<std::string, float>>& style) {
@@ -67,6 +78,17 @@ absl::Status Session::ApplyStyle(const std::vector<std::pair<std::string, float>
   for (auto& r : rows) r.second = static_cast<float>(r.second / total);
   model_->sequence().SetStyle(model_->sequence().StyleVector(rows), &cond_);
   style_ = style;
+  if (warped()) {
+    // The style's reference tempo (weighted geometric mean for a mix): each style is learned at its own
+    // typical tempo, so a song's octave folds consistently whatever its exact tempo (docs/model.md s. 1).
+    double log_ref = 0.0;
+    for (const auto& [row, weight] : rows) log_ref += weight * std::log(model_->StyleReferenceBpm(row));
+    const double ref = std::exp(log_ref);
+    if (ref != style_reference_bpm_) {
+      style_reference_bpm_ = ref;
+      warp_.clock.SetReference(ref);
+    }
+  }
   return absl::OkStatus();
 }
 
@@ -109,7 +131,14 @@ void Session::EndOfAudio() {
   const int64_t period = static_cast<int64_t>(audio::kHopSamples) * model_->config().frames_per_step;
   const int64_t periods = (samples24 + period - 1) / period;
   frames_limit_ = periods * model_->config().frames_per_step;
-  const int64_t missing24 = std::max<int64_t>(0, frames_limit_ * audio::kHopSamples - samples24);
+  // Warped steps read past the last emitted real frame (the poses of real frame m come from warped
+  // frames up to ceil(W_m) and the model reads one period of music behind them): pad extra real frames,
+  // enough at the slowest clock rate (~0.65 warped frames per real frame).
+  if (warped()) warp_.output_limit = frames_limit_;  // before the padding's frames reach EmitWarpedFrames
+  const int64_t extra_frames =
+      warped() ? 16 + 8 * (model_->config().music_lookahead_steps + 1) * model_->config().frames_per_step : 0;
+  const int64_t missing24 =
+      std::max<int64_t>(0, (frames_limit_ + extra_frames) * audio::kHopSamples - samples24);
   const int64_t pad = (missing24 + audio::kHopSamples) * rate / audio::kSampleRate + rate / 10 +
                       front_end_->BufferingSamples();
   std::vector<float> silence(static_cast<size_t>(pad) * options_.input_channels, 0.0f);
@@ -117,6 +146,19 @@ void Session::EndOfAudio() {
   front_end_->Flush().IgnoreError();
   CollectFrames();
   ended_ = true;
+  if (warped()) {
+    // Real frames [4, frames_limit_) are emitted; the last one needs decoded warped frames up to
+    // ceil(W), i.e. periods 1..K with 4 (K + 1) > ceil(W), and K steps read music up to 4 (K + s).
+    const SeqConfig& c = model_->config();
+    const int64_t last = frames_limit_ - 1;
+    if (last < warp_.next_output) return;  // nothing more to emit
+    const double w_last = warp_.starts[last - warp_.next_output];
+    const int64_t needed_decoded = static_cast<int64_t>(std::ceil(w_last)) + 1;
+    const int64_t periods_needed = (needed_decoded + c.frames_per_step - 1) / c.frames_per_step;  // K + 1
+    warp_.warped_limit = std::min<int64_t>(warp_.clock.warped_frames(),
+                                           (periods_needed - 1 + c.music_lookahead_steps) * c.frames_per_step);
+    EmitWarpedFrames();
+  }
 }
 
 void Session::CollectFrames() {
@@ -125,11 +167,26 @@ void Session::CollectFrames() {
   if (n == 0) return;
   pending_features_.insert(pending_features_.end(), popped_.features.begin(), popped_.features.end());
   pending_pre_.insert(pending_pre_.end(), popped_.pre.begin(), popped_.pre.end());
+  if (warped()) {
+    for (int64_t i = 0; i < n; ++i) {
+      const float tempo = popped_.features[i * kFeatureDims + audio::kTempoIndex];
+      const audio::TempoClock::Span span = warp_.clock.Push(audio::TempoClock::TempoFromFeature(tempo));
+      if (span.frame >= warp_.next_output) warp_.starts.push_back(span.begin);
+      for (int64_t j = span.first_warped; j < span.end_warped; ++j) warp_.source.push_back(span.frame);
+    }
+  }
   frames_total_ += n;
+  if (warped()) EmitWarpedFrames();
 }
 
 int Session::StepsReady() const {
   const int fps = model_->config().frames_per_step;
+  if (warped()) {
+    int64_t usable = warp_.clock.warped_frames();
+    if (warp_.warped_limit >= 0) usable = std::min(usable, warp_.warped_limit);
+    const int64_t total_steps = usable / fps - model_->config().music_lookahead_steps;
+    return static_cast<int>(std::max<int64_t>(0, total_steps - cond_.step));
+  }
   const int64_t usable = frames_limit_ >= 0 ? std::min(frames_total_, frames_limit_) : frames_total_;
   const int64_t total_steps = usable / fps - model_->config().music_lookahead_steps;
   return static_cast<int>(std::max<int64_t>(0, total_steps - cond_.step));
@@ -137,6 +194,20 @@ int Session::StepsReady() const {
 
 void Session::StepInputs(const float** music, const float** pre) {
   const int fps = model_->config().frames_per_step;
+  if (warped()) {
+    // Gather the token's warped frames from their source frames (docs/model.md section 8).
+    const int64_t first_warped = (cond_.step + model_->config().music_lookahead_steps) * fps;
+    music_token_.resize(static_cast<size_t>(fps) * kFeatureDims);
+    int64_t src = 0;
+    for (int f = 0; f < fps; ++f) {
+      src = warp_.source[first_warped + f - warp_.first_source] - first_pending_frame_;
+      std::copy_n(pending_features_.data() + src * kFeatureDims, kFeatureDims,
+                  music_token_.data() + static_cast<size_t>(f) * kFeatureDims);
+    }
+    *music = music_token_.data();
+    *pre = pending_pre_.data() + src * kPreDims;
+    return;
+  }
   const int64_t first = (cond_.step + model_->config().music_lookahead_steps) * fps - first_pending_frame_;
   *music = pending_features_.data() + first * kFeatureDims;
   *pre = pending_pre_.data() + (first + fps - 1) * kPreDims;
@@ -163,6 +234,28 @@ void Session::EmitFrames(const Eigen::Ref<const Eigen::MatrixXf>& up, const Eige
   const SeqConfig& c = model_->config();
   // cond_.step was advanced by the model: the step just taken is cond_.step - 1, emitting period cond_.step.
   const int64_t first_frame = cond_.step * c.frames_per_step;
+  if (warped()) {
+    for (int f = 0; f < c.frames_per_step; ++f) {
+      std::array<Eigen::Vector3f, 24>& p = warp_.poses.emplace_back();
+      reconstructor_.Reconstruct(up.col(f).data(), low.col(f).data(), pose_, &p, nullptr);
+      warp_.pose_codes.emplace_back(upper_code_, lower_code_);
+    }
+    EmitWarpedFrames();
+    // Forget warped sources and feature frames no step will read again.
+    const int64_t next_warped = (cond_.step + c.music_lookahead_steps) * c.frames_per_step;
+    while (warp_.first_source < next_warped && !warp_.source.empty()) {
+      warp_.source.pop_front();
+      ++warp_.first_source;
+    }
+    const int64_t needed_from = warp_.source.empty() ? frames_total_ : warp_.source.front();
+    const int64_t drop = needed_from - first_pending_frame_;
+    if (drop >= 256) {
+      pending_features_.erase(pending_features_.begin(), pending_features_.begin() + drop * kFeatureDims);
+      pending_pre_.erase(pending_pre_.begin(), pending_pre_.begin() + drop * kPreDims);
+      first_pending_frame_ += drop;
+    }
+    return;
+  }
   for (int f = 0; f < c.frames_per_step; ++f) {
     PoseFrame& frame = output_.emplace_back();
     frame.index = first_frame + f;
@@ -178,6 +271,36 @@ void Session::EmitFrames(const Eigen::Ref<const Eigen::MatrixXf>& up, const Eige
     pending_features_.erase(pending_features_.begin(), pending_features_.begin() + drop * kFeatureDims);
     pending_pre_.erase(pending_pre_.begin(), pending_pre_.begin() + drop * kPreDims);
     first_pending_frame_ += drop;
+  }
+}
+
+void Session::EmitWarpedFrames() {
+  const int64_t decoded_end = warp_.first_pose + static_cast<int64_t>(warp_.poses.size());
+  while (!warp_.starts.empty() && (warp_.output_limit < 0 || warp_.next_output < warp_.output_limit)) {
+    // Warped position of real frame m, held at the first decoded pose before the dance starts. The pair
+    // (a, a + 1) with a < w <= a + 1 keeps frame m causal: pose a + 1 comes from a step that read warped
+    // music up to a < W_m, whose source frames are all < m.
+    const double w = std::max(warp_.starts.front(), static_cast<double>(warp_.first_pose) + 1.0);
+    const int64_t a = static_cast<int64_t>(std::ceil(w)) - 1;
+    if (a + 1 >= decoded_end) break;  // its poses are not decoded yet
+    const float frac = static_cast<float>(w - static_cast<double>(a));
+    const auto& pa = warp_.poses[a - warp_.first_pose];
+    const auto& pb = warp_.poses[a + 1 - warp_.first_pose];
+    PoseFrame& frame = output_.emplace_back();
+    frame.index = warp_.next_output;
+    frame.time_s = static_cast<double>(frame.index) / audio::kFrameRate;
+    for (int j = 0; j < 24; ++j) frame.positions[j] = pa[j] + frac * (pb[j] - pa[j]);
+    reconstructor_.ProjectBoneLengths(frame.positions);
+    reconstructor_.JointRotations(frame.positions, &frame.rotations);
+    std::tie(frame.upper_code, frame.lower_code) = warp_.pose_codes[a - warp_.first_pose];
+    warp_.starts.pop_front();
+    ++warp_.next_output;
+    // Poses before a are never needed again (W only grows).
+    while (warp_.first_pose < a) {
+      warp_.poses.pop_front();
+      warp_.pose_codes.pop_front();
+      ++warp_.first_pose;
+    }
   }
 }
 
@@ -212,6 +335,7 @@ absl::StatusOr<SessionSnapshot> Session::Snapshot() const {
   s.upper_decoder = upper_state_;
   s.lower_decoder = lower_state_;
   s.pose = pose_;
+  s.warp = warp_;
   s.output = output_;
   return s;
 }
@@ -246,6 +370,8 @@ absl::Status Session::Restore(const SessionSnapshot& s) {
   upper_state_ = s.upper_decoder;
   lower_state_ = s.lower_decoder;
   pose_ = s.pose;
+  warp_ = s.warp;
+  style_reference_bpm_ = warp_.clock.options().reference_bpm;
   output_ = s.output;
   return absl::OkStatus();
 }
@@ -269,6 +395,7 @@ void Session::Reset() {
   upper_state_.Clear();
   lower_state_.Clear();
   pose_ = PoseState();
+  warp_ = NewWarpState();
   output_.clear();
 }
 
@@ -277,6 +404,8 @@ int64_t Session::StateBytes() const {
   if (uses_guidance()) n += uncond_.Bytes();
   n += static_cast<int64_t>(sizeof(audio::AudioFrontEnd) + sizeof(audio::FeatureExtractorState));
   n += static_cast<int64_t>((pending_features_.capacity() + pending_pre_.capacity()) * sizeof(float));
+  n += static_cast<int64_t>(warp_.source.size() * sizeof(int64_t) + warp_.starts.size() * sizeof(double) +
+                            warp_.poses.size() * (sizeof(warp_.poses[0]) + sizeof(warp_.pose_codes[0])));
   return n;
 }
 

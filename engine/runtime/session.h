@@ -19,6 +19,12 @@
 // section 2), so the first frame emitted has index 4 and time_s = 4/30 s. A step is ready when the audio of
 // its music token (period t + music_lookahead_steps) has fully arrived; after EndOfAudio the last partial
 // period is padded with silence so the dance covers the whole song.
+// Tempo-normalised models (Model::tempo_reference_bpm() > 0; docs/model.md section 8): the steps run on
+// the warped timeline of audio::TempoClock (its frames follow the music's running tempo), music tokens are
+// gathered from each warped frame's source frame, and the decoded warped poses are resampled back onto
+// the real 30 fps timeline: real frame m shows the warped pose at W_m (linear interpolation, then bone
+// projection and rotations). Frame m is emitted as soon as real frames < m have arrived and its warped
+// poses are decoded, so indices and times keep the meaning above (first index 4, contiguous).
 //
 // Errors: Create/SetStyle/SetSampling return InvalidArgument for bad settings (rate outside
 // [8000, 96000], channels outside [1, 8], unknown style, negative temperature, ...); PushAudio refuses
@@ -45,6 +51,7 @@
 #include "absl/status/statusor.h"
 #include "absl/types/span.h"
 #include "engine/audio/audio_front_end.h"
+#include "engine/audio/tempo_clock.h"
 #include "engine/model/sequence_state.h"
 #include "engine/nn/sampling.h"
 #include "engine/runtime/model.h"
@@ -70,6 +77,20 @@ struct PoseFrame {
   int lower_code = 0;
 };
 
+// The tempo-normalised time base of a session (unused for fixed-rate models); copyable.
+struct WarpState {
+  audio::TempoClock clock;
+  std::deque<int64_t> source;   // source real frame of warped frames [first_source, ...)
+  int64_t first_source = 0;
+  std::deque<double> starts;    // W_m of real frames [next_output, clock.frames())
+  int64_t next_output = 0;      // next real frame to emit
+  std::deque<std::array<Eigen::Vector3f, 24>> poses;  // decoded warped frames [first_pose, ...), projected
+  std::deque<std::pair<int, int>> pose_codes;         // their (upper, lower) codes
+  int64_t first_pose = 0;
+  int64_t warped_limit = -1;    // after EndOfAudio: warped frames the steps may read
+  int64_t output_limit = -1;    // after EndOfAudio: real frames to emit (exclusive)
+};
+
 // Everything a Session remembers, as a copyable value (opaque to callers; valid only for a session of the
 // same model and input format).
 struct SessionSnapshot {
@@ -90,6 +111,7 @@ struct SessionSnapshot {
   int upper_code = 0, lower_code = 0;
   VqDecoderState upper_decoder, lower_decoder;
   PoseState pose;
+  WarpState warp;
   std::vector<PoseFrame> output;
 };
 
@@ -146,6 +168,10 @@ class Session {
   void SampleCodes(const float* logits_u, const float* logits_l, const float* uncond_u, const float* uncond_l);
   // After the VQ decoders ran: reconstructs and queues this step's frames ((45, 4) and (31, 4) features).
   void EmitFrames(const Eigen::Ref<const Eigen::MatrixXf>& upper, const Eigen::Ref<const Eigen::MatrixXf>& lower);
+  // Tempo-normalised models: emits every real frame whose warped poses are decoded.
+  void EmitWarpedFrames();
+  bool warped() const { return model_->tempo_reference_bpm() > 0.0; }
+  WarpState NewWarpState() const;
 
   std::shared_ptr<const Model> model_;
   SessionOptions options_;
@@ -167,6 +193,8 @@ class Session {
   VqDecoderState upper_state_, lower_state_;
   PoseReconstructor reconstructor_;
   PoseState pose_;
+  WarpState warp_;
+  double style_reference_bpm_ = 0.0;  // the current style's reference tempo (tempo-normalised models)
   SamplerScratch sampler_;
   std::vector<float> guided_u_, guided_l_;  // (K) scratch
   std::vector<PoseFrame> output_;

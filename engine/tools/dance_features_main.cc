@@ -1,12 +1,15 @@
 // dance-features: decodes an audio file and writes the engine's causal features as .npy arrays.
 //
 //   dance-features AUDIO --out FEATURES.npy [--pre PRE.npy] [--pre-input PRE_INPUT.npy]
-//                  [--chunk-samples N] [--summary]
+//                  [--clock CLOCK.npy [--tempo-ref BPM]] [--chunk-samples N] [--summary]
 //
 // FEATURES.npy: float32 (frames, 108); FEATURES.npy.json: the layout (names, index ranges, units).
 // PRE.npy: float32 (frames, 128). PRE_INPUT.npy: float32 (frames, 4), PRE's input channels (for the
 // Python batch reference). --chunk-samples feeds the stream in chunks of N input frames (default
 // 4096; the output does not depend on it). --summary prints one JSON line to stdout.
+// CLOCK.npy: float32 (warped frames, 2): for each frame j of the tempo-normalised timeline at
+// --tempo-ref BPM (default 105; engine/audio/tempo_clock.h), its source feature frame and its continuous
+// real frame position; training resamples features and motion with it.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -23,6 +26,7 @@
 #include "engine/audio/decoder.h"
 #include "engine/audio/feature_layout.h"
 #include "engine/audio/npy_writer.h"
+#include "engine/audio/tempo_clock.h"
 #include "nlohmann/json.hpp"
 
 namespace {
@@ -30,14 +34,15 @@ namespace {
 using namespace dance::engine::audio;  // NOLINT: a tool's main
 
 struct Flags {
-  std::string audio, out, pre, pre_input;
+  std::string audio, out, pre, pre_input, clock;
+  double tempo_ref_bpm = 105.0;
   int64_t chunk_samples = 4096;
   bool summary = false;
 };
 
 constexpr char kUsage[] =
     "usage: dance-features AUDIO --out FEATURES.npy [--pre PRE.npy] [--pre-input PRE_INPUT.npy]\n"
-    "                      [--chunk-samples N] [--summary]\n";
+    "                      [--clock CLOCK.npy [--tempo-ref BPM]] [--chunk-samples N] [--summary]\n";
 
 absl::Status ParseFlags(int argc, char** argv, Flags* flags) {
   for (int i = 1; i < argc; ++i) {
@@ -54,6 +59,15 @@ absl::Status ParseFlags(int argc, char** argv, Flags* flags) {
       s = value(&flags->pre);
     } else if (arg == "--pre-input") {
       s = value(&flags->pre_input);
+    } else if (arg == "--clock") {
+      s = value(&flags->clock);
+    } else if (arg == "--tempo-ref") {
+      std::string v;
+      s = value(&v);
+      if (s.ok() && (!absl::SimpleAtod(v, &flags->tempo_ref_bpm) || !(flags->tempo_ref_bpm >= 30.0) ||
+                     !(flags->tempo_ref_bpm <= 300.0))) {
+        s = absl::InvalidArgumentError(absl::StrCat("--tempo-ref must be a tempo in 30..300 BPM, got '", v, "'"));
+      }
     } else if (arg == "--chunk-samples") {
       std::string v;
       s = value(&v);
@@ -75,8 +89,9 @@ absl::Status ParseFlags(int argc, char** argv, Flags* flags) {
     if (!s.ok()) return s;
   }
   if (flags->audio.empty()) return absl::InvalidArgumentError("no AUDIO file given");
-  if (flags->out.empty() && !flags->summary && flags->pre.empty() && flags->pre_input.empty()) {
-    return absl::InvalidArgumentError("nothing to do: give --out, --pre, --pre-input or --summary");
+  if (flags->out.empty() && !flags->summary && flags->pre.empty() && flags->pre_input.empty() &&
+      flags->clock.empty()) {
+    return absl::InvalidArgumentError("nothing to do: give --out, --pre, --pre-input, --clock or --summary");
   }
   return absl::OkStatus();
 }
@@ -159,6 +174,22 @@ absl::Status Run(const Flags& flags) {
   }
   if (!flags.pre_input.empty()) {
     if (absl::Status s = WriteNpyFloat32(flags.pre_input, all.pre_input, frames, kPreChannels);
+        !s.ok()) {
+      return s;
+    }
+  }
+  if (!flags.clock.empty()) {
+    TempoClock clock({.reference_bpm = flags.tempo_ref_bpm});
+    std::vector<float> rows;
+    for (int64_t n = 0; n < frames; ++n) {
+      const TempoClock::Span span =
+          clock.Push(TempoClock::TempoFromFeature(all.features[n * kNumFeatures + kTempoIndex]));
+      for (int64_t j = span.first_warped; j < span.end_warped; ++j) {
+        rows.push_back(static_cast<float>(n));
+        rows.push_back(static_cast<float>(span.RealPosition(j)));
+      }
+    }
+    if (absl::Status s = WriteNpyFloat32(flags.clock, rows, static_cast<int64_t>(rows.size() / 2), 2);
         !s.ok()) {
       return s;
     }

@@ -74,7 +74,7 @@ void PoseReconstructor::Reconstruct(const float* upper, const float* lower, Pose
     p[kLowerJoints[i]] = RotateY(local, state.yaw) + root;
   }
   ProjectBoneLengths(p);
-  JointRotations(p, rotations);
+  if (rotations != nullptr) JointRotations(p, rotations);
 }
 
 void PoseReconstructor::ProjectBoneLengths(std::array<Eigen::Vector3f, kNumJoints>& positions) const {

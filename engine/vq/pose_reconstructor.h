@@ -44,6 +44,7 @@ class PoseReconstructor {
 
   // upper: (45) 15 upper joints relative to the pelvis in the facing frame; lower: (31) 9 lower joints
   // relative to the pelvis (pelvis row = (0, height, 0)) then (vx, vz, yaw_rate, height).
+  // `rotations` may be null (positions only).
   void Reconstruct(const float* upper, const float* lower, PoseState& state,
                    std::array<Eigen::Vector3f, kNumJoints>* positions,
                    std::array<Eigen::Quaternionf, kNumJoints>* rotations) const;

@@ -1,4 +1,9 @@
-// Integration: the client library (PerformStream, the load tester) against a real server.
+// Integration: the client library (PerformStream, the load tester) against a real server, and the load
+// tester's frame accounting against a scripted server whose sessions fail part-way.
+#include <grpcpp/grpcpp.h>
+
+#include "absl/strings/match.h"
+#include "absl/strings/str_cat.h"
 #include "absl/time/clock.h"
 #include "client/load_test.h"
 #include "client/perform_stream.h"
@@ -56,13 +61,97 @@ TEST(ClientIntegration, LoadTestReportsEveryField) {
   EXPECT_EQ(r->errors, 0) << r->first_error;
   EXPECT_EQ(r->dropped_frames, 0);
   EXPECT_GE(r->frames, 4 * 40);  // 1.5 s = 45 frames per stream, minus the first period
+  // The lower bound of what the audio called for holds for the real engine (else dropped would be > 0).
+  EXPECT_EQ(r->expected_frames, r->frames);
   EXPECT_GT(r->p99_ms, 0.0);
   EXPECT_GE(r->p99_ms, r->p50_ms);
   auto j = nlohmann::json::parse(LoadReportJson(*r));
-  for (const char* k : {"streams", "duration_s", "frames_per_s", "errors", "dropped_frames", "p50_ms", "p95_ms",
-                        "p99_ms", "max_skew_ms"}) {
+  for (const char* k : {"streams", "duration_s", "frames_per_s", "errors", "dropped_frames", "expected_frames",
+                        "p50_ms", "p95_ms", "p99_ms", "max_skew_ms"}) {
     EXPECT_TRUE(j.contains(k)) << k;
   }
+}
+
+TEST(LoadAccounting, ExpectedFramesFollowTheAudioSent) {
+  EXPECT_EQ(FramesForAudio(30 * 44100, 44100, 30.0, 4), 896);  // 900 frames of audio, minus the first period
+  EXPECT_EQ(FramesForAudio(24000, 24000, 30.0, 4), 26);
+  EXPECT_EQ(FramesForAudio(100, 24000, 30.0, 4), 0);
+  EXPECT_EQ(FramesForAudio(0, 24000, 30.0, 4), 0);
+  StreamTally ended;  // ended OK: the server's count rules when it is larger
+  ended.received = 900;
+  ended.audio_frames_sent = 30 * 44100;
+  ended.sample_rate_hz = 44100;
+  ended.got_end = true;
+  ended.end_frames = 900;
+  EXPECT_EQ(StreamExpectedFrames(ended), 900);
+  EXPECT_EQ(StreamMissingFrames(ended), 0);
+  ended.received = 880;
+  EXPECT_EQ(StreamMissingFrames(ended), 20);
+  StreamTally failed = ended;  // the issue-5 case: failed, no StreamEnd, nothing received
+  failed.got_end = false;
+  failed.end_frames = 0;
+  failed.received = 0;
+  EXPECT_EQ(StreamMissingFrames(failed), 896);
+  failed.received = 10;
+  failed.gaps = 2;
+  EXPECT_EQ(StreamMissingFrames(failed), 886);
+}
+
+// A scripted server: SessionInfo, then `frames` frames once all audio is in, then an error instead of
+// StreamEnd (what an overloaded server's idle timeout looked like to the load tester in issue 5).
+class FailingDanceService final : public dance::v1::DanceService::Service {
+ public:
+  explicit FailingDanceService(int frames) : frames_(frames) {}
+  grpc::Status Perform(grpc::ServerContext*,
+                       grpc::ServerReaderWriter<dance::v1::DanceUpdate, dance::v1::PerformRequest>* stream) override {
+    dance::v1::DanceUpdate info;
+    info.mutable_info()->set_session_id("s-scripted");
+    info.mutable_info()->set_fps(30);
+    info.mutable_info()->set_frames_per_step(4);
+    info.mutable_info()->set_samples_per_step(3200);
+    dance::v1::PerformRequest req;
+    bool info_sent = false;
+    while (stream->Read(&req)) {
+      if (!info_sent) info_sent = stream->Write(info);
+      if (req.has_end()) break;
+    }
+    for (int i = 0; i < frames_; ++i) {
+      dance::v1::DanceUpdate u;
+      u.mutable_frame()->set_index(4 + i);
+      stream->Write(u);
+    }
+    return grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "no audio for 30s (idle timeout)");
+  }
+
+ private:
+  const int frames_;
+};
+
+TEST(ClientIntegration, LoadTestCountsFramesOfFailedSessionsAsDropped) {
+  FailingDanceService service(/*frames=*/10);
+  grpc::ServerBuilder b;
+  int port = 0;
+  b.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port);
+  b.RegisterService(&service);
+  std::unique_ptr<grpc::Server> server = b.BuildAndStart();
+  ASSERT_NE(server, nullptr);
+  ASSERT_GT(port, 0);
+  LoadOptions o;
+  o.target = absl::StrCat("127.0.0.1:", port);
+  o.streams = 3;
+  o.duration_s = 1.5;
+  o.stagger_s = 0.0;
+  o.realtime = false;  // all audio is sent: the expectation is exact
+  auto r = RunLoad(o, Clip(1.5, 24000), std::cerr);
+  server->Shutdown();
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_EQ(r->errors, 3);
+  EXPECT_EQ(r->frames, 3 * 10);
+  EXPECT_EQ(r->expected_frames, 3 * (45 - 4));        // 1.5 s at 30 fps, minus the first period
+  EXPECT_EQ(r->dropped_frames, 3 * (45 - 4 - 10));    // never produced, never received
+  auto j = nlohmann::json::parse(LoadReportJson(*r));
+  EXPECT_EQ(j["dropped_frames"], 3 * 31);
+  EXPECT_TRUE(absl::StrContains(r->first_error, "idle timeout")) << r->first_error;
 }
 
 }  // namespace

@@ -70,3 +70,38 @@ def test_usage_errors(features_cli):
     proc = subprocess.run([str(features_cli), "x.wav", "--chunk-samples", "0", "--summary"],
                           capture_output=True, text=True)
     assert proc.returncode == 2 and "--chunk-samples" in proc.stderr
+
+
+def test_clock_maps_warped_frames_to_the_running_tempo(features_cli, song, tmp_path):
+    """`--clock`: every warped frame has one source frame, in order; per real frame the number of warped
+    frames follows the running tempo folded into the reference octave (engine/audio/tempo_clock.h)."""
+    ref = 105.0
+    clock_path = tmp_path / "clock.npy"
+    proc = subprocess.run([str(features_cli), str(song), "--out", str(tmp_path / "f.npy"), "--clock",
+                           str(clock_path), "--tempo-ref", str(ref)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    feats = np.load(tmp_path / "f.npy")
+    clock = np.load(clock_path).astype(np.float64)
+    src, x = clock[:, 0], clock[:, 1]
+    assert np.all(np.diff(src) >= 0) and np.all(np.diff(x) > 0)
+    assert np.all((x >= src - 1e-3) & (x < src + 1 + 1e-3))  # float32 positions
+    assert src[-1] <= len(feats) - 1
+    # Warped frames per real frame = fold(tempo) / ref, checked over 10-s stretches whose tempo stays
+    # clear of the octave edges (there the hysteresis may keep either octave).
+    tempo = 120.0 * 2.0 ** feats[:, 104].astype(np.float64)
+    counts = np.bincount(src.astype(np.int64), minlength=len(feats))
+    checked = 0
+    for a in range(0, len(feats) - 300, 300):
+        octave = np.log2(tempo[a:a + 300] / ref)
+        folded = tempo[a:a + 300] / 2.0 ** np.round(octave)
+        if np.abs(octave - np.round(octave)).max() > 0.5 - 0.12:  # within ~9 % of an edge
+            continue
+        assert np.isclose(counts[a:a + 300].mean(), (folded / ref).mean(), rtol=0.01), a
+        checked += 1
+    assert checked >= 5
+
+
+def test_clock_refuses_a_bad_reference(features_cli, song, tmp_path):
+    proc = subprocess.run([str(features_cli), str(song), "--clock", str(tmp_path / "c.npy"), "--tempo-ref", "0"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "--tempo-ref" in proc.stderr

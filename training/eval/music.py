@@ -106,10 +106,13 @@ def beat_period_s(beats_s: np.ndarray, start_s: float = -np.inf, end_s: float = 
 
 
 def stretch_audio(src: str | pathlib.Path, factor: float, dst: str | pathlib.Path) -> pathlib.Path:
-  """Writes `src` played `factor` times faster with the pitch kept (sox tempo), as 24 kHz mono WAV."""
+  """Writes `src` played `factor` times faster with the pitch kept (sox tempo), as 24 kHz mono float WAV
+  (deterministic: the same input gives the same bytes)."""
   dst = pathlib.Path(dst)
   dst.parent.mkdir(parents=True, exist_ok=True)
-  cmd = ["sox", str(src), "-r", "24000", "-c", "1", str(dst), "tempo", "-m", f"{factor:.6f}"]
+  # 32-bit float output: sox dithers (randomly) when it writes 16-bit, which made runs differ.
+  cmd = ["sox", str(src), "-e", "floating-point", "-b", "32", "-r", "24000", "-c", "1", str(dst),
+         "tempo", "-m", f"{factor:.6f}"]
   proc = subprocess.run(cmd, capture_output=True, text=True)
   if proc.returncode != 0:
     raise RuntimeError(f"sox failed ({' '.join(cmd)}): {proc.stderr.strip()}")

@@ -42,7 +42,12 @@ def dominant_period(positions: np.ndarray, fps: float = 30.0, lo_s: float = 0.3,
   window x around_s when given); NaN if there is none."""
   if around_s is not None:
     lo_s, hi_s = window[0] * around_s, window[1] * around_s
-  ac = speed_autocorrelation(positions, fps, max_lag_s=hi_s + 0.2)
+  return period_of_autocorrelation(speed_autocorrelation(positions, fps, max_lag_s=hi_s + 0.2), fps, lo_s, hi_s)
+
+
+def period_of_autocorrelation(ac: np.ndarray, fps: float, lo_s: float, hi_s: float) -> float:
+  """The dominant-period rule of dominant_period applied to a given speed autocorrelation (e.g. the mean
+  over several dances of one song); NaN if there is no peak in [lo_s, hi_s]."""
   k = np.arange(len(ac))
   peaks = [i for i in range(1, len(ac) - 1) if ac[i] >= ac[i - 1] and ac[i] > ac[i + 1]
            and lo_s * fps <= i <= hi_s * fps]
@@ -89,7 +94,9 @@ def tempo_following(generate: Callable[[str], np.ndarray], audio_path: str | pat
   periods = []
   for f in factors:
     stretched = stretch_audio(audio_path, f, workdir / f"{pathlib.Path(audio_path).stem}_x{f:.2f}.wav")
-    periods.append(dominant_period(generate(str(stretched)), fps, around_s=p1))
+    # No dominant period in the original (a dance without a periodic peak): nothing to follow.
+    periods.append(dominant_period(generate(str(stretched)), fps, around_s=p1) if np.isfinite(p1)
+                   else float("nan"))
   return {"base_period_s": p1, "factors": list(factors), "periods_s": periods,
           "ratio": fit_ratio(factors, periods, p1)}
 
@@ -102,3 +109,26 @@ def time_stretch_motion(positions: np.ndarray, factor: float) -> np.ndarray:
   i = np.minimum(np.floor(src).astype(int), t - 2)
   w = (src - i)[:, None, None]
   return positions[i] * (1 - w) + positions[i + 1] * w
+
+
+def pooled_tempo_following(generate_many: Callable[[str], list[np.ndarray]], audio_path: str | pathlib.Path,
+                           workdir: str | pathlib.Path, factors=FACTORS, fps: float = 30.0,
+                           max_lag_s: float = 6.0) -> dict:
+  """tempo_following for a stochastic generator: generate_many(audio) returns several dances (seeds) of
+  the same music; their speed autocorrelations are averaged before the dominant period is taken, so the
+  period is that of the generator's dances to this music rather than of one random draw. Same fit."""
+  workdir = pathlib.Path(workdir)
+
+  def mean_ac(path):
+    acs = [speed_autocorrelation(p, fps, max_lag_s=max_lag_s) for p in generate_many(str(path))]
+    n = min(len(a) for a in acs)
+    return np.mean([a[:n] for a in acs], axis=0)
+
+  p1 = period_of_autocorrelation(mean_ac(audio_path), fps, 0.3, 4.0)
+  periods = []
+  for f in factors:
+    stretched = stretch_audio(audio_path, f, workdir / f"{pathlib.Path(audio_path).stem}_x{f:.2f}.wav")
+    periods.append(period_of_autocorrelation(mean_ac(stretched), fps, 0.7 * p1, 1.4 * p1) if np.isfinite(p1)
+                   else float("nan"))
+  return {"base_period_s": p1, "factors": list(factors), "periods_s": periods,
+          "ratio": fit_ratio(factors, periods, p1)}

@@ -107,6 +107,27 @@ def extract_features(audio: str | os.PathLike, cache_dir: str | os.PathLike | No
     return _load(out_dir)
 
 
+def extract_clock(audio: str | os.PathLike, reference_bpm: float,
+                  cache_dir: str | os.PathLike | None = None) -> np.ndarray:
+    """The engine's tempo clock over one audio file (`dance-features --clock`, engine/audio/tempo_clock.h):
+    (warped frames, 2) float32, per warped frame its source feature frame and its real frame position."""
+    audio = Path(audio)
+    cli = find_cli()
+    cache_root = Path(cache_dir or os.environ.get("DANCE_FEATURE_CACHE",
+                                                  Path.home() / ".cache" / "dance-features"))
+    out_dir = cache_root / f"{_hash_file(audio)}-{_hash_file(cli)}"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / f"clock_{reference_bpm:g}.npy"
+    if not path.is_file():
+        tmp = out_dir / f".clock_{os.getpid()}.npy"
+        proc = subprocess.run([str(cli), str(audio), "--clock", str(tmp), "--tempo-ref", f"{reference_bpm:g}"],
+                              capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"dance-features --clock failed on {audio}: {proc.stderr.strip()}")
+        tmp.replace(path)
+    return np.load(path)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("audio", nargs="+")

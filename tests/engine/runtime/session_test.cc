@@ -316,5 +316,192 @@ TEST(Session, Int16MatchesFloat) {
   ExpectSameFrames(RunStream(*a, audio, {audio.size()}), fb);
 }
 
+
+// ---- Tempo-normalised models (Model::tempo_reference_bpm() > 0, docs/model.md section 8) ----
+
+std::shared_ptr<const Model> WarpedTinyModel(double reference_bpm = 105.0) {
+  testing::TinyModelOptions o;
+  o.tempo_reference_bpm = reference_bpm;
+  return LoadTinyModel(o);
+}
+
+TEST(WarpedSession, EmitsContiguousFramesCoveringTheAudio) {
+  auto model = WarpedTinyModel();
+  ASSERT_EQ(model->tempo_reference_bpm(), 105.0);
+  auto s = MakeSession(model);
+  const std::vector<PoseFrame> frames = RunStream(*s, testing::ClickAudio(6.0, 140.0), {4000});
+  // 6 s = 45 periods = frames 0..179; poses from frame 4 on, every frame once, in order.
+  ASSERT_EQ(frames.size(), 180u - 4u);
+  for (size_t i = 0; i < frames.size(); ++i) {
+    ASSERT_EQ(frames[i].index, static_cast<int64_t>(i) + 4);
+    ASSERT_DOUBLE_EQ(frames[i].time_s, frames[i].index / 30.0);
+  }
+}
+
+TEST(WarpedSession, ChunkingInvariance) {
+  auto model = WarpedTinyModel();
+  const std::vector<float> audio = testing::ClickAudio(5.0, 95.0);
+  auto a = MakeSession(model, Opts(3, Sampling(1.0f)));
+  auto b = MakeSession(model, Opts(3, Sampling(1.0f)));
+  auto c = MakeSession(model, Opts(3, Sampling(1.0f)));
+  const std::vector<PoseFrame> whole = RunStream(*a, audio, {audio.size()});
+  ExpectSameFrames(whole, RunStream(*b, audio, {1, 799, 3200, 17}));
+  ExpectSameFrames(whole, RunStream(*c, audio, {24000}));
+}
+
+TEST(WarpedSession, StepsFollowTheMusicTempo) {
+  // Over the last 10 s of a 20 s click track (the beat tracker has settled), warped steps advance at
+  // fold(tempo) / reference: at 140 BPM 4/3 warped frames per real frame, at 90 BPM 6/7.
+  auto model = WarpedTinyModel(105.0);
+  auto steps_in_second_half = [&](double bpm) {
+    auto s = MakeSession(model);
+    const std::vector<float> audio = testing::ClickAudio(20.0, bpm);
+    const size_t half = audio.size() / 2;
+    EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
+    DrainSteps(*s);
+    const int64_t at_half = s->steps_done();
+    EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
+    DrainSteps(*s);
+    return static_cast<double>(s->steps_done() - at_half);
+  };
+  const double fast = steps_in_second_half(140.0), slow = steps_in_second_half(90.0);
+  // 300 real frames / 4 frames per step x rate.
+  EXPECT_NEAR(fast, 75.0 * 140.0 / 105.0, 2.0);
+  EXPECT_NEAR(slow, 75.0 * 90.0 / 105.0, 2.0);
+  // A fixed-rate model takes 75 steps whatever the tempo.
+  auto fixed = MakeSession(LoadTinyModel());
+  const std::vector<float> audio = testing::ClickAudio(10.0, 140.0);
+  ASSERT_TRUE(fixed->PushAudio(audio).ok());
+  DrainSteps(*fixed);
+  EXPECT_EQ(fixed->steps_done(), 75);
+}
+
+TEST(WarpedSession, IsCausal) {
+  // Frame m depends on audio before m / 30 s only (declared lookahead 0): perturbing the audio from
+  // sample X on changes no frame with m * 800 <= X.
+  auto model = WarpedTinyModel();
+  std::vector<float> audio = testing::ClickAudio(6.0, 120.0);
+  std::vector<float> changed = audio;
+  const size_t from = 3 * 24000 + 123;
+  std::mt19937 gen(5);
+  std::uniform_real_distribution<float> noise(-0.5f, 0.5f);
+  for (size_t i = from; i < changed.size(); ++i) changed[i] = noise(gen);
+  auto a = MakeSession(model, Opts(2, Sampling(0.0f)));
+  auto b = MakeSession(model, Opts(2, Sampling(0.0f)));
+  const std::vector<PoseFrame> fa = RunStream(*a, audio, {3000});
+  const std::vector<PoseFrame> fb = RunStream(*b, changed, {3000});
+  ASSERT_EQ(fa.size(), fb.size());
+  size_t compared = 0;
+  bool later_differs = false;
+  for (size_t i = 0; i < fa.size(); ++i) {
+    const bool before = fa[i].index * 800 <= static_cast<int64_t>(from);
+    float diff = 0.0f;
+    for (int j = 0; j < 24; ++j) diff = std::max(diff, (fa[i].positions[j] - fb[i].positions[j]).norm());
+    if (before) {
+      ASSERT_EQ(diff, 0.0f) << "frame " << fa[i].index;
+      ++compared;
+    } else if (diff > 0.0f) {
+      later_differs = true;
+    }
+  }
+  EXPECT_GT(compared, 80u);
+  EXPECT_TRUE(later_differs);  // the perturbation reaches the dance (else the test proves nothing)
+}
+
+TEST(WarpedSession, SnapshotRestoreContinuesExactly) {
+  auto model = WarpedTinyModel();
+  const std::vector<float> audio = testing::ClickAudio(5.0, 130.0);
+  const size_t part = audio.size() / 2 + 321;
+  auto s = MakeSession(model, Opts(8, Sampling(0.8f, 6)));
+  ASSERT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data(), part)).ok());
+  DrainSteps(*s);
+  absl::StatusOr<SessionSnapshot> snap = s->Snapshot();
+  ASSERT_TRUE(snap.ok());
+  std::vector<float> rest(audio.begin() + part, audio.end());
+  const std::vector<PoseFrame> first = RunStream(*s, rest, {1000});
+  auto fresh = MakeSession(model, Opts(8, Sampling(0.8f, 6)));
+  ASSERT_TRUE(fresh->Restore(*snap).ok());
+  ExpectSameFrames(first, RunStream(*fresh, rest, {4321}));
+  s->Reset();
+  auto again = MakeSession(model, Opts(8, Sampling(0.8f, 6)));
+  ExpectSameFrames(RunStream(*s, audio, {5000}), RunStream(*again, audio, {777}));
+}
+
+TEST(WarpedSession, StepBatchMatchesSteppingAlone) {
+  auto model = WarpedTinyModel();
+  const std::vector<float> audio = testing::ClickAudio(4.0, 100.0);
+  std::vector<std::vector<PoseFrame>> alone;
+  for (int i = 0; i < 3; ++i) {
+    auto s = MakeSession(model, Opts(10 + i, Sampling(1.0f)));
+    alone.push_back(RunStream(*s, audio, {2400}));
+  }
+  std::vector<std::unique_ptr<Session>> sessions;
+  std::vector<Session*> ptrs;
+  for (int i = 0; i < 3; ++i) {
+    sessions.push_back(MakeSession(model, Opts(10 + i, Sampling(1.0f))));
+    ptrs.push_back(sessions.back().get());
+  }
+  for (size_t pos = 0; pos < audio.size(); pos += 2400) {
+    const size_t n = std::min<size_t>(2400, audio.size() - pos);
+    for (Session* s : ptrs) ASSERT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data() + pos, n)).ok());
+    while (ptrs[0]->StepsReady() > 0) ASSERT_TRUE(StepBatch(ptrs).ok());
+  }
+  for (Session* s : ptrs) {
+    s->EndOfAudio();
+    DrainSteps(*s);
+  }
+  for (int i = 0; i < 3; ++i) {
+    std::vector<PoseFrame> out;
+    ptrs[i]->PopFrames(&out);
+    ExpectSameFrames(alone[i], out, 1e-4f);
+  }
+}
+
+TEST(WarpedSession, EachStyleHasItsOwnReferenceTempo) {
+  // waltz R = 87, tango R = 128: a 140 BPM click track is a tango at rate 140 / 128 and, folded into the
+  // waltz octave [61.5, 123) (140 is beyond its 8 % hysteresis), a 70 BPM waltz at rate 70 / 87; a mix
+  // uses the geometric mean of the references; "none" the default 105.
+  testing::TinyModelOptions o;
+  o.tempo_reference_bpm = 105.0;
+  o.style_reference_bpm = {{"waltz", 87.0}, {"tango", 128.0}};
+  auto model = LoadTinyModel(o);
+  auto steps_in_second_half = [&](std::vector<std::pair<std::string, float>> style) {
+    SessionOptions opt;
+    opt.style = std::move(style);
+    auto s = MakeSession(model, opt);
+    const std::vector<float> audio = testing::ClickAudio(20.0, 140.0);
+    const size_t half = audio.size() / 2;
+    EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
+    DrainSteps(*s);
+    const int64_t at_half = s->steps_done();
+    EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
+    DrainSteps(*s);
+    return static_cast<double>(s->steps_done() - at_half);
+  };
+  EXPECT_NEAR(steps_in_second_half({{"tango", 1.0f}}), 75.0 * 140.0 / 128.0, 2.0);
+  EXPECT_NEAR(steps_in_second_half({{"waltz", 1.0f}}), 75.0 * 70.0 / 87.0, 2.0);
+  EXPECT_NEAR(steps_in_second_half({}), 75.0 * 140.0 / 105.0, 2.0);
+  // 50/50 mix: R = sqrt(87 * 128) = 105.5; 140 stays in [74.6, 149.2).
+  EXPECT_NEAR(steps_in_second_half({{"waltz", 0.5f}, {"tango", 0.5f}}), 75.0 * 140.0 / std::sqrt(87.0 * 128.0),
+              2.0);
+}
+
+TEST(WarpedSession, RefusesABadTimeBase) {
+  // Reference tempo outside 30..300 BPM is refused when the model loads.
+  testing::TinyModelOptions o;
+  o.tempo_reference_bpm = 5000.0;
+  const std::string path = ::testing::TempDir() + "/bad_time_base.dncw";
+  ASSERT_TRUE(testing::TinyModelWriter(o).WriteFile(path).ok());
+  absl::StatusOr<std::shared_ptr<const Model>> m = LoadModel(path);
+  ASSERT_FALSE(m.ok());
+  EXPECT_TRUE(absl::StrContains(m.status().message(), "reference_bpm")) << m.status();
+  o.tempo_reference_bpm = 105.0;
+  o.style_reference_bpm = {{"salsa", 90.0}};  // not a style of this model
+  ASSERT_TRUE(testing::TinyModelWriter(o).WriteFile(path).ok());
+  m = LoadModel(path);
+  ASSERT_FALSE(m.ok());
+  EXPECT_TRUE(absl::StrContains(m.status().message(), "unknown style 'salsa'")) << m.status();
+}
+
 }  // namespace
 }  // namespace dance::engine

@@ -112,6 +112,10 @@ WeightsWriter TinyModelWriter(const TinyModelOptions& o) {
   }
   nlohmann::json meta = {{"model_id", absl::StrCat("cpp-tiny-", o.seed)}, {"hyperparameters", hp},
                          {"skeleton", skeleton}, {"styles", {"waltz", "tango"}}, {"vq", vq}};
+  if (o.tempo_reference_bpm > 0.0) {
+    meta["time_base"] = {{"kind", "tempo"}, {"reference_bpm", o.tempo_reference_bpm}};
+    for (const auto& [name, bpm] : o.style_reference_bpm) meta["time_base"]["style_reference_bpm"][name] = bpm;
+  }
   WeightsWriter w(meta);
   Builder b(&w, o.seed, o.scale);
   b.Random("seq.music_mean", {4 * f}, 0.1f);
@@ -208,10 +212,12 @@ std::shared_ptr<const Model> LoadTinyModel(const TinyModelOptions& options) {
   return *model;
 }
 
-std::vector<float> TestAudio(double seconds, int sample_rate) {
+std::vector<float> TestAudio(double seconds, int sample_rate) { return ClickAudio(seconds, 120.0, sample_rate); }
+
+std::vector<float> ClickAudio(double seconds, double bpm, int sample_rate) {
   const int64_t n = static_cast<int64_t>(seconds * sample_rate);
   std::vector<float> out(n);
-  const int64_t beat = sample_rate / 2;  // 120 BPM
+  const int64_t beat = static_cast<int64_t>(std::llround(sample_rate * 60.0 / bpm));
   for (int64_t i = 0; i < n; ++i) {
     const double t = static_cast<double>(i) / sample_rate;
     const int64_t since = i % beat;

@@ -11,6 +11,8 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "engine/nn/weights_writer.h"
 #include "engine/runtime/model.h"
@@ -31,6 +33,8 @@ struct TinyModelOptions {
   int vq_n_res = 1;
   int music_lookahead_steps = 0;
   float scale = 0.3f;  // weight magnitude: large enough that codes vary
+  double tempo_reference_bpm = 0.0;  // > 0: metadata time_base {"kind": "tempo", "reference_bpm": ...}
+  std::vector<std::pair<std::string, double>> style_reference_bpm;  // time_base.style_reference_bpm
 };
 
 WeightsWriter TinyModelWriter(const TinyModelOptions& options);
@@ -44,6 +48,8 @@ std::shared_ptr<const Model> LoadTinyModel(const TinyModelOptions& options = {})
 
 // A deterministic test signal: clicks on a 120 BPM grid over a low tone, mono, 24 kHz.
 std::vector<float> TestAudio(double seconds, int sample_rate = 24000);
+// The same at another tempo (clicks every 60 / bpm s).
+std::vector<float> ClickAudio(double seconds, double bpm, int sample_rate = 24000);
 
 }  // namespace dance::engine::testing
 

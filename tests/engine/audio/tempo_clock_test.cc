@@ -1,0 +1,83 @@
+// TempoClock: octave folding, hysteresis, and the real <-> warped frame mapping (engine/audio/tempo_clock.h).
+#include "engine/audio/tempo_clock.h"
+
+#include <cmath>
+#include <vector>
+
+#include "gtest/gtest.h"
+
+namespace dance::engine::audio {
+namespace {
+
+TEST(TempoClock, FoldsIntoTheReferenceOctave) {
+  for (double tempo : {43.5, 87.0, 174.0, 348.0}) {
+    TempoClock clock({.reference_bpm = 105.0});
+    EXPECT_NEAR(clock.Fold(tempo), 87.0, 1e-9) << tempo;
+  }
+  TempoClock clock({.reference_bpm = 105.0});
+  EXPECT_NEAR(clock.Fold(125.0), 125.0, 1e-9);
+  TempoClock bad({.reference_bpm = 105.0});
+  EXPECT_EQ(bad.Fold(std::nan("")), 105.0);
+  EXPECT_EQ(bad.Fold(-3.0), 105.0);
+}
+
+TEST(TempoClock, KeepsItsOctaveNearTheEdge) {
+  // Edge of the octave at 105 * sqrt 2 = 148.5 BPM: a tempo wobbling around it keeps the first choice.
+  TempoClock clock({.reference_bpm = 105.0, .octave_hysteresis = 0.08});
+  EXPECT_NEAR(clock.Fold(146.0), 146.0, 1e-9);
+  EXPECT_NEAR(clock.Fold(152.0), 152.0, 1e-9);  // within 8 % above the edge: same octave
+  EXPECT_NEAR(clock.Fold(170.0), 85.0, 1e-9);   // far beyond: the next octave
+  EXPECT_NEAR(clock.Fold(140.0), 70.0, 1e-9);   // now 70 is within 8 % below 74.2: stays
+  EXPECT_NEAR(clock.Fold(130.0), 130.0, 1e-9);  // 65 is too far below: back up
+}
+
+TEST(TempoClock, RateIsTempoOverReference) {
+  TempoClock clock({.reference_bpm = 100.0});
+  for (int n = 0; n < 300; ++n) {
+    const TempoClock::Span s = clock.Push(125.0);
+    EXPECT_DOUBLE_EQ(s.rate, 1.25);
+    EXPECT_EQ(s.frame, n);
+  }
+  EXPECT_NEAR(clock.position(), 375.0, 1e-9);
+  EXPECT_EQ(clock.warped_frames(), 375);
+}
+
+TEST(TempoClock, EveryWarpedFrameHasExactlyOneSourceInOrder) {
+  TempoClock clock({.reference_bpm = 105.0});
+  std::vector<int64_t> source;
+  std::vector<double> position;
+  for (int n = 0; n < 2000; ++n) {
+    const double tempo = 80.0 + 60.0 * std::sin(n * 0.01);  // sweeps 80..140 BPM
+    const TempoClock::Span s = clock.Push(tempo);
+    EXPECT_EQ(s.first_warped, static_cast<int64_t>(source.size()));
+    for (int64_t j = s.first_warped; j < s.end_warped; ++j) {
+      // j lies in [W_n, W_{n+1}) and its real position in [n, n + 1).
+      EXPECT_GE(static_cast<double>(j), s.begin);
+      EXPECT_LT(static_cast<double>(j), s.end);
+      const double x = s.RealPosition(j);
+      EXPECT_GE(x, static_cast<double>(n));
+      EXPECT_LT(x, n + 1.0);
+      if (!position.empty()) {
+        EXPECT_GT(x, position.back());
+      }
+      source.push_back(n);
+      position.push_back(x);
+    }
+  }
+  EXPECT_EQ(static_cast<int64_t>(source.size()), clock.warped_frames());
+  EXPECT_EQ(clock.warped_frames(), static_cast<int64_t>(std::ceil(clock.position())));
+}
+
+TEST(TempoClock, CopyContinuesIdentically) {
+  TempoClock a({.reference_bpm = 105.0});
+  for (int n = 0; n < 100; ++n) a.Push(90.0 + n * 0.5);
+  TempoClock b = a;
+  for (int n = 0; n < 100; ++n) {
+    const TempoClock::Span sa = a.Push(150.0 - n), sb = b.Push(150.0 - n);
+    EXPECT_EQ(sa.begin, sb.begin);
+    EXPECT_EQ(sa.end_warped, sb.end_warped);
+  }
+}
+
+}  // namespace
+}  // namespace dance::engine::audio

@@ -1,0 +1,69 @@
+"""The metric table of the product itself: dances from the C++ engine (`dance-generate`) on the validation
+songs, against the real dances and the baselines (training.eval.evaluate), plus rendered strips.
+
+    .venv/bin/python -m training.eval.engine_eval --model models/default.dncw --out-dir training/runs/X/engine
+        [--seed 0] [--temperature 1]
+
+Writes <out-dir>/dances/<id>.json (dance-motion/v1 from dance-generate), metrics.md, metrics.json and
+strip_<id>.png / beats_<id>.png for the first two songs. Needs librosa's beat cache (the project .venv).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import subprocess
+
+import numpy as np
+
+from training import train_data as td
+from training.eval.engine_tempo import dance_generate_bin
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+
+
+def generate_song(model: str, mid: str, out: pathlib.Path, seed: int, temperature: float) -> pathlib.Path:
+  z = np.load(td.MOTION_CACHE / f"{mid}.npz")
+  cmd = [str(dance_generate_bin()), "--audio", str(z["audio_path"]), "--out", str(out), "--model", model,
+         "--seed", str(seed), "--style", str(z["style"]), "--temperature", str(temperature), "--quiet"]
+  proc = subprocess.run(cmd, capture_output=True, text=True)
+  if proc.returncode != 0:
+    raise RuntimeError(f"dance-generate failed on {mid}: {proc.stderr.strip()}")
+  return out
+
+
+def main(argv=None) -> None:
+  from training.eval.evaluate import Dance, Evaluator, load_dance, markdown_table
+  from training.eval.metrics import joint_speed, motion_beats
+  from training.eval.render import render_beats, render_strip
+  ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  ap.add_argument("--model", default=str(REPO / "models" / "default.dncw"))
+  ap.add_argument("--out-dir", required=True)
+  ap.add_argument("--seed", type=int, default=0)
+  ap.add_argument("--temperature", type=float, default=1.0)
+  args = ap.parse_args(argv)
+  out = pathlib.Path(args.out_dir)
+  (out / "dances").mkdir(parents=True, exist_ok=True)
+  ids = td.paired_ids(td.load_split()["validation"])
+  dances = []
+  for mid in ids:
+    z = np.load(td.MOTION_CACHE / f"{mid}.npz")
+    path = generate_song(args.model, mid, out / "dances" / f"{mid}.json", args.seed, args.temperature)
+    d = load_dance(path, audio=str(z["audio_path"]))  # audio_offset_s: the song time of the first frame
+    dances.append(Dance(mid, d.positions, d.fps, d.audio_path, d.audio_offset_s, str(z["style"])))
+  ev = Evaluator.default()
+  rows = {"model (engine)": ev.evaluate(dances)}
+  rows.update(ev.baselines())
+  table = markdown_table(rows)
+  (out / "metrics.md").write_text(table)
+  (out / "metrics.json").write_text(json.dumps(rows, indent=1))
+  print(table)
+  for d in dances[:2] + [x for x in dances if x.name == "tang_DANCE_W_3"]:
+    render_strip(d.positions, str(out / f"strip_{d.name}.png"), start_s=20.0)
+    speed = joint_speed(d.positions, d.fps)
+    render_beats(speed, motion_beats(d.positions, d.fps), d.beats(), str(out / f"beats_{d.name}.png"),
+                 window_s=(20.0, 32.0), title=f"{d.name} (engine, seed {args.seed})")
+
+
+if __name__ == "__main__":
+  main()

@@ -1,0 +1,112 @@
+"""Tempo following of the product itself: the C++ engine (`dance-generate`) on time-stretched songs.
+
+For each song and seed: the first `--seconds` of the song (sox trim), and that excerpt stretched to 0.85x
+and 1.15x with `sox tempo` (pitch kept); `dance-generate` dances to each; training.eval.tempo fits how the
+dance's dominant period scales with the music (1 = follows exactly, 0 = ignores the music). Reported per
+run (song x seed) and with the seeds pooled per song (the dominant period of the seeds' mean speed
+autocorrelation: one random dance's period is a noisy estimate of the generator's, per-run ratios of the
+same model spread over about -1.5..2).
+
+    /usr/bin/python3 -m training.eval.engine_tempo --model models/default.dncw [--songs validation]
+        [--seeds 0 1] [--seconds 60] [--out report.json]
+
+Needs `dance-generate` (DANCE_BUILD_DIR, default build/) and sox.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import subprocess
+import tempfile
+
+import numpy as np
+
+from training import train_data as td
+from training.eval.tempo import pooled_tempo_following, tempo_following
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+
+
+def dance_generate_bin() -> pathlib.Path:
+  build = pathlib.Path(os.environ.get("DANCE_BUILD_DIR", REPO / "build"))
+  return build / "bin" / "dance-generate"
+
+
+def generate(model: str, audio: str, seed: int, style: str, workdir: pathlib.Path,
+             temperature: float = 1.0) -> np.ndarray:
+  """Runs dance-generate on `audio`; returns positions (T, 24, 3) at 30 fps."""
+  out = workdir / (pathlib.Path(audio).stem + f"_s{seed}.json")
+  if out.is_file():  # already danced in this run (same model and settings: the workdir is per run)
+    return np.asarray(json.loads(out.read_text())["positions"], dtype=np.float64)
+  cmd = [str(dance_generate_bin()), "--audio", audio, "--out", str(out), "--model", model, "--seed", str(seed),
+         "--temperature", str(temperature), "--quiet"]
+  if style:
+    cmd += ["--style", style]
+  proc = subprocess.run(cmd, capture_output=True, text=True)
+  if proc.returncode != 0:
+    raise RuntimeError(f"dance-generate failed: {proc.stderr.strip()}")
+  return np.asarray(json.loads(out.read_text())["positions"], dtype=np.float64)
+
+
+def song_excerpt(audio: str, seconds: float, dst: pathlib.Path) -> str:
+  # Float output: no (random) dither, so every run dances to the same samples.
+  subprocess.run(["sox", audio, "-e", "floating-point", "-b", "32", "-r", "24000", "-c", "1", str(dst), "trim", "0",
+                  str(seconds)], check=True, capture_output=True)
+  return str(dst)
+
+
+def main(argv=None) -> None:
+  ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  ap.add_argument("--model", default=str(REPO / "models" / "default.dncw"))
+  ap.add_argument("--songs", default="validation", help="validation, train, or comma-separated motion ids")
+  ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+  ap.add_argument("--seconds", type=float, default=60.0)
+  ap.add_argument("--temperature", type=float, default=1.0)
+  ap.add_argument("--out", default=None)
+  args = ap.parse_args(argv)
+  split = td.load_split()
+  ids = td.paired_ids(split[args.songs]) if args.songs in ("validation", "train") else args.songs.split(",")
+  rows, pooled = [], []
+  with tempfile.TemporaryDirectory() as tmp:
+    work = pathlib.Path(tmp)
+    for mid in ids:
+      z = np.load(td.MOTION_CACHE / f"{mid}.npz")
+      excerpt = song_excerpt(str(z["audio_path"]), args.seconds, work / f"{mid}.wav")
+      for seed in args.seeds:
+        gen = lambda path, seed=seed, style=str(z["style"]): generate(  # noqa: E731
+            args.model, path, seed, style, work, args.temperature)
+        r = tempo_following(gen, excerpt, work)
+        r.update(id=mid, seed=seed)
+        rows.append(r)
+        print(f"{mid} seed {seed}: ratio {r['ratio']:.3f}  periods {r['base_period_s']:.3f} -> "
+              f"{['%.3f' % p for p in r['periods_s']]}", flush=True)
+      # The same songs with the seeds pooled: the mean speed autocorrelation of all seeds' dances.
+      gen_many = lambda path, style=str(z["style"]): [generate(  # noqa: E731
+          args.model, path, seed, style, work, args.temperature) for seed in args.seeds]
+      r = pooled_tempo_following(gen_many, excerpt, work)
+      r.update(id=mid)
+      pooled.append(r)
+      print(f"{mid} pooled over seeds {args.seeds}: ratio {r['ratio']:.3f}  periods {r['base_period_s']:.3f} -> "
+            f"{['%.3f' % p for p in r['periods_s']]}", flush=True)
+  ratios = [r["ratio"] for r in rows if np.isfinite(r["ratio"])]
+  pooled_ratios = [r["ratio"] for r in pooled if np.isfinite(r["ratio"])]
+  report = {"model": args.model, "seconds": args.seconds, "temperature": args.temperature, "seeds": args.seeds,
+            "mean_ratio": float(np.mean(ratios)) if ratios else None,
+            "median_ratio": float(np.median(ratios)) if ratios else None, "runs": len(rows),
+            "finite_runs": len(ratios), "rows": rows,
+            "pooled_mean_ratio": float(np.mean(pooled_ratios)) if pooled_ratios else None,
+            "pooled_finite_songs": len(pooled_ratios), "pooled_rows": pooled}
+  print(f"per run: mean ratio {report['mean_ratio']}, median {report['median_ratio']} over "
+        f"{len(ratios)}/{len(rows)} runs; seeds pooled: mean ratio {report['pooled_mean_ratio']} over "
+        f"{len(pooled_ratios)}/{len(pooled)} songs")
+  if args.out:
+    clean = lambda v: (None if isinstance(v, float) and not np.isfinite(v) else  # noqa: E731
+                       [clean(x) for x in v] if isinstance(v, list) else
+                       {k: clean(x) for k, x in v.items()} if isinstance(v, dict) else v)
+    pathlib.Path(args.out).write_text(json.dumps(clean(report), indent=1, allow_nan=False))
+
+
+if __name__ == "__main__":
+  main()
