@@ -9,14 +9,16 @@ jobs="${DANCE_JOBS:-$(nproc)}"
 if [ "$preset" = release ]; then build_dir=build; else build_dir="build-$preset"; fi
 
 if [ "$preset" = tsan ]; then
-  # TSan covers the multi-threaded part only: the server and client suites (the engine is single-threaded
-  # per session and runs under ASan). Builds just their targets; suppressions: cmake/tsan.supp.
-  tsan_tests=(server_unit_test perform_integration_test bad_client_integration_test http_integration_test
-              dance_file_test client_integration_test)
+  # TSan covers the multi-threaded part only and builds just its targets (no engine). The suites are the
+  # server's and client's that do not run gRPC: the scheduler, sessions and sinks (with a test double
+  # engine) and the client's files. The gRPC integration suites are left out on purpose: Debian's libgrpc,
+  # libprotobuf and libabsl are not TSan-instrumented, so the happens-before edges of gRPC's callbacks are
+  # invisible and TSan reports hundreds of false races in gRPC's headers and in every reactor; they need a
+  # TSan-built gRPC. absl::Mutex is made visible by cmake/tsan_absl_mutex.cc; suppressions: cmake/tsan.supp.
+  tsan_tests=(server_unit_test dance_file_test)
   cmake --preset tsan >/dev/null
-  cmake --build --preset tsan -j "$jobs" --target "${tsan_tests[@]}" dance-server
-  (cd "$build_dir" && ctest --output-on-failure -j "$jobs" --timeout 900 \
-     -R "^($(IFS='|'; echo "${tsan_tests[*]}")|python_client_test)\$")
+  cmake --build --preset tsan -j "$jobs" --target "${tsan_tests[@]}"
+  (cd "$build_dir" && ctest --output-on-failure -j "$jobs" --timeout 900 -R "^($(IFS='|'; echo "${tsan_tests[*]}"))\$")
   echo "test.sh: all tsan tests passed"
   exit 0
 fi
