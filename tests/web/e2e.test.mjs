@@ -71,8 +71,15 @@ test('frames arrive at the stream rate', async () => {
   // loaded machine shifts single windows, not this.
   const rate = b.frameRateConnection;
   assert.ok(Math.abs(rate - fps) / fps < 0.1, `received ${rate.toFixed(1)} frames/s, stream says ${fps}`);
-  // The playout clock runs behind the newest frame (no starvation at steady state).
-  assert.ok(b.bufferedAheadMs > -100, `buffered ahead ${b.bufferedAheadMs} ms`);
+  // The playout clock runs behind the newest frame (no starvation at steady state). One sample can catch
+  // a moment when a loaded machine delayed the newest burst; starvation shows in most samples.
+  const ahead = [];
+  for (let i = 0; i < 9; ++i) {
+    ahead.push((await stats()).bufferedAheadMs);
+    await page.waitForTimeout(250);
+  }
+  ahead.sort((x, y) => x - y);
+  assert.ok(ahead[4] > -100, `buffered ahead (median of 9 samples over 2 s) ${ahead[4]} ms: ${ahead.join(', ')}`);
   assert.ok(b.display.frames > 0, 'display loop runs');
 });
 
