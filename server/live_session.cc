@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <optional>
 #include <utility>
 
 #include "absl/strings/str_cat.h"
@@ -216,6 +217,7 @@ absl::Status LiveSession::Drain(absl::Time now) {
       resume = resumer_;
     }
   }
+  std::optional<TriggerMark> last_audio;  // the last audio chunk drained
   for (InboxItem& item : items) {
     switch (item.kind) {
       case InboxItem::Kind::kAudio: {
@@ -226,6 +228,7 @@ absl::Status LiveSession::Drain(absl::Time now) {
         samples_in_.fetch_add(frames, std::memory_order_relaxed);
         metrics_->audio_samples_total.fetch_add(frames, std::memory_order_relaxed);
         RecordTrigger(item.end_sample, item.arrival);
+        last_audio = TriggerMark{0, item.end_sample, item.arrival};
         break;
       }
       case InboxItem::Kind::kControl: {
@@ -246,8 +249,9 @@ absl::Status LiveSession::Drain(absl::Time now) {
         break;
     }
   }
-  // A tempo-normalised model emits real frames as their audio arrives (not only after a step): send them.
-  if (!items.empty()) PublishFrames(now);
+  // A tempo-normalised model emits real frames as their audio arrives (not only after a step): send them,
+  // timed from the last audio chunk drained (the one that released them).
+  if (last_audio.has_value()) PublishFrames(now, &*last_audio);
   if (resume) resume();
   return absl::OkStatus();
 }
@@ -291,11 +295,14 @@ void LiveSession::AfterStep(absl::Time now) {
   PublishFrames(now);
 }
 
-void LiveSession::PublishFrames(absl::Time now) {
+void LiveSession::PublishFrames(absl::Time now, const TriggerMark* audio_trigger) {
   while (!triggers_.empty() && triggers_.front().steps_total < steps_done_) triggers_.pop_front();
   int64_t trigger_end = 0;
   absl::Time trigger_arrival = now;
-  if (!triggers_.empty()) {
+  if (audio_trigger != nullptr) {
+    trigger_end = audio_trigger->end_sample;
+    trigger_arrival = audio_trigger->arrival;
+  } else if (!triggers_.empty()) {
     trigger_end = triggers_.front().end_sample;
     trigger_arrival = triggers_.front().arrival;
   }

@@ -132,7 +132,10 @@ class LiveSession {
                                   bool* pause_reading);
   absl::Status QueueControl(std::optional<StyleMix> style, std::optional<SamplingConfig> sampling);
   absl::Status QueueEnd(absl::Time arrival);
-  void PublishFrames(absl::Time now);
+  // Publishes the frames the engine has produced. `audio_trigger`: the frames were released by the audio
+  // just drained (a tempo-normalised model emits a frame once its audio has arrived), so that chunk, not
+  // the one that made the last step ready, is what their latency is measured from.
+  void PublishFrames(absl::Time now, const TriggerMark* audio_trigger = nullptr);
   void Publish(std::vector<UpdatePtr> updates, const std::vector<UpdatePtr>& stripped);
   void PublishOne(const UpdatePtr& update);
   void PushEvent(dance::v1::Event::Kind kind, const std::string& message);
