@@ -105,6 +105,7 @@ absl::StatusOr<LoadReport> RunLoad(const LoadOptions& o, std::shared_ptr<const A
   r.streams = o.streams;
   r.duration_s = absl::ToDoubleSeconds(t1 - t0);
   std::vector<float> lat;
+  std::vector<float> server_share;
   // Streams that never got a SessionInfo (e.g. refused) use the model's rates from one that did.
   double fps = 30.0;
   int frames_per_step = 4;
@@ -116,9 +117,18 @@ absl::StatusOr<LoadReport> RunLoad(const LoadOptions& o, std::shared_ptr<const A
       break;
     }
   }
-  for (auto& s : streams) {
+  for (size_t i = 0; i < streams.size(); ++i) {
+    PerformStream* s = streams[i].get();
     absl::Status st = s->Wait();
     const FrameStats& fs = s->stats();
+    r.slow_frames += static_cast<int64_t>(fs.slow.size());
+    r.slow_streams += fs.slow.empty() ? 0 : 1;
+    const double offset_s = absl::ToDoubleSeconds(start_at[i] - t0);
+    for (const FrameStats::Slow& f : fs.slow) {
+      ++r.slow_by_stream_second[static_cast<int>(f.at_s)];
+      ++r.slow_by_run_second[static_cast<int>(offset_s + f.at_s)];
+      server_share.push_back(f.server_ms / f.latency_ms);
+    }
     r.frames += fs.frames;
     StreamTally t;
     t.received = fs.frames;
@@ -143,7 +153,23 @@ absl::StatusOr<LoadReport> RunLoad(const LoadOptions& o, std::shared_ptr<const A
   r.p95_ms = Percentile(lat, 0.95);
   r.p99_ms = Percentile(lat, 0.99);
   r.max_ms = lat.empty() ? 0.0 : *std::max_element(lat.begin(), lat.end());
+  r.slow_server_share_p50 = Percentile(server_share, 0.5);
   return r;
+}
+
+std::string SlowFramesSummary(const LoadReport& r) {
+  if (r.slow_frames == 0) return absl::StrFormat("slow frames (>= %.0f ms): none", kSlowFrameMs);
+  auto buckets = [](const std::map<int, int64_t>& m) {
+    std::string out;
+    for (const auto& [sec, n] : m) absl::StrAppendFormat(&out, " %ds:%lld", sec, static_cast<long long>(n));
+    return out;
+  };
+  return absl::StrFormat("slow frames (>= %.0f ms): %lld in %d streams; median share of their latency spent "
+                         "before the server produced them %.2f\n  by second into the stream:%s\n"
+                         "  by second of the run:%s",
+                         kSlowFrameMs, static_cast<long long>(r.slow_frames), r.slow_streams,
+                         r.slow_server_share_p50,
+                         buckets(r.slow_by_stream_second), buckets(r.slow_by_run_second));
 }
 
 std::string LoadReportJson(const LoadReport& r) {
@@ -159,7 +185,8 @@ std::string LoadReportJson(const LoadReport& r) {
                       {"p99_ms", round3(r.p99_ms)},
                       {"max_skew_ms", round3(r.max_skew_ms)},
                       {"frames", r.frames},
-                      {"max_ms", round3(r.max_ms)}};
+                      {"max_ms", round3(r.max_ms)},
+                      {"slow_frames", r.slow_frames}};
   if (!r.first_error.empty()) j["first_error"] = r.first_error;
   return j.dump();
 }

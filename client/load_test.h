@@ -9,6 +9,7 @@
 #ifndef DANCE_CLIENT_LOAD_TEST_H_
 #define DANCE_CLIENT_LOAD_TEST_H_
 
+#include <map>
 #include <memory>
 #include <ostream>
 #include <string>
@@ -47,6 +48,12 @@ struct LoadReport {
   int64_t dropped_frames = 0;
   double p50_ms = 0.0, p95_ms = 0.0, p99_ms = 0.0, max_ms = 0.0;
   double max_skew_ms = 0.0;
+  // Frames at least kSlowFrameMs late, and where they fell: seconds into their stream and seconds since the
+  // run started (both floored), to tell start-up stalls from moments that hit every stream.
+  int64_t slow_frames = 0;
+  int slow_streams = 0;
+  std::map<int, int64_t> slow_by_stream_second, slow_by_run_second;
+  double slow_server_share_p50 = 0.0;  // median over slow frames of (server time - send) / latency
   std::string first_error;
 };
 
@@ -73,6 +80,8 @@ int64_t StreamMissingFrames(const StreamTally& t);
 absl::StatusOr<LoadReport> RunLoad(const LoadOptions& options, std::shared_ptr<const AudioClip> clip,
                                    std::ostream& progress);
 std::string LoadReportJson(const LoadReport& report);
+// Human-readable lines on the slow frames (count, and where in time they fell).
+std::string SlowFramesSummary(const LoadReport& report);
 
 }  // namespace dance::client
 

@@ -240,6 +240,7 @@ int Load() {
       r->streams, r->duration_s, r->frames_per_s, r->errors, static_cast<long long>(r->dropped_frames), r->p50_ms,
       r->p95_ms, r->p99_ms, r->max_skew_ms);
   if (!r->first_error.empty()) std::cout << "first error: " << r->first_error << "\n";
+  std::cout << dance::client::SlowFramesSummary(*r) << "\n";
   std::cout << dance::client::LoadReportJson(*r) << std::endl;
   return r->errors == 0 ? 0 : 1;
 }

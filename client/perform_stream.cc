@@ -137,7 +137,13 @@ void PerformStream::HandleUpdate(const dance::v1::DanceUpdate& u, absl::Time arr
                                    std::make_pair(f.trigger_sample_end(), absl::InfinitePast()));
         if (it != chunk_sent_.end() && it->first == f.trigger_sample_end()) sent = it->second;
       }
-      stats_.latency_ms.push_back(static_cast<float>(absl::ToDoubleMilliseconds(arrival - sent)));
+      const double latency_ms = absl::ToDoubleMilliseconds(arrival - sent);
+      stats_.latency_ms.push_back(static_cast<float>(latency_ms));
+      if (latency_ms >= kSlowFrameMs) {
+        const double server_ms = absl::ToDoubleMilliseconds(absl::FromUnixMicros(f.server_time_us()) - sent);
+        stats_.slow.push_back({static_cast<float>(absl::ToDoubleSeconds(arrival - t0_)),
+                               static_cast<float>(latency_ms), static_cast<float>(server_ms)});
+      }
       stats_.max_skew_ms = std::max(stats_.max_skew_ms, absl::ToDoubleMilliseconds(arrival - t0_) - f.time_ms());
       ++stats_.frames;
       if (options_.keep_frames) frames_.push_back(f);

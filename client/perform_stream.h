@@ -40,10 +40,20 @@ struct PerformOptions {
   std::string auth_token;           // sent as "authorization: Bearer ..."
 };
 
+inline constexpr double kSlowFrameMs = 100.0;
+
 struct FrameStats {
   int64_t frames = 0;
   int64_t gaps = 0;                 // frames missing from the index sequence
   std::vector<float> latency_ms;    // one per frame
+  // Frames later than kSlowFrameMs, to see when stalls happen (start of a stream, one moment for all
+  // streams, ...) and where (before the frame left the server, or after).
+  struct Slow {
+    float at_s;        // arrival, seconds since the stream started
+    float latency_ms;  // arrival - send of the triggering chunk
+    float server_ms;   // the frame's server_time_us - that send (meaningful when client and server share a clock)
+  };
+  std::vector<Slow> slow;
   double max_skew_ms = 0.0;
 };
 

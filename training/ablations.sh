@@ -6,17 +6,22 @@
 # everything else copied: full (control), no PRE, no gate, one shared Mamba, reactive (music shift 1).
 # Each is exported and measured with the engine (tempo following, seeds pooled) and the teacher-forced
 # validation losses (music gap).
-#   training/ablations.sh PARENT.dncw [ITERS]        (default 200; repository root; .venv for metrics)
+#   training/ablations.sh PARENT.dncw [ITERS [VARIANT...]]   (default 200 and all variants; run from anywhere;
+#                                                             .venv for metrics)
+# VARIANT: full, no_pre, no_gate, shared_mamba, reactive.
 # Results: training/runs/abl_<name>/{train.log,eval_report.json,engine_tempo.json,engine/metrics.md}
 set -euo pipefail
 cd "$(dirname "$0")/.."
 parent="${1:?usage: training/ablations.sh PARENT.dncw [ITERS]}"
 iters="${2:-200}"
+shift $(( $# < 2 ? $# : 2 ))
+wanted=("$@")
 py="${PYTHON:-.venv/bin/python}"
 export OMP_WAIT_POLICY=PASSIVE
 for spec in "full:" "no_pre:--no-pre" "no_gate:--no-gate" "shared_mamba:--shared-mamba" "reactive:--lookahead 1"; do
   name="${spec%%:*}"
   flags="${spec#*:}"
+  if (( ${#wanted[@]} )) && [[ ! " ${wanted[*]} " == *" ${name} "* ]]; then continue; fi
   run="training/runs/abl_${name}"
   # shellcheck disable=SC2086
   "$py" -m training.train --run "$run" --stages seq,export,eval --vq-model "$parent" --init-model "$parent" \

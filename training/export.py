@@ -1,16 +1,21 @@
 """Writes and reads the `.dncw` weights file (docs/architecture.md, docs/weights-format.md).
 
-    /usr/bin/python3 -m training.export --checkpoint training/runs/default/seq.pt --out models/default.dncw
+    /usr/bin/python3 -m training.export --check models/default.dncw
+    /usr/bin/python3 -m training.export --convert IN.dncw OUT.dncw --dtype f16   # or --dtype f32
 
 Layout: "DNCW", u32 version 1, u64 header length, UTF-8 JSON header, zero padding to 64, tensors (each at a
-multiple of 64 from the data start), u32 CRC-32 of everything before it. All tensors are little-endian f32.
+multiple of 64 from the data start), u32 CRC-32 of everything before it. Tensors are little-endian "f32"
+(IEEE binary32) or "f16" (IEEE binary16); readers widen f16 to float32. Which tensors are stored as f16 is
+decided by `f16_policy` (exports made by training.train use it unless told `--weights-dtype f32`).
 """
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import json
 import struct
 import zlib
+from collections.abc import Mapping
 
 import numpy as np
 import torch
@@ -24,6 +29,19 @@ VERSION = 1
 ALIGN = 64
 STREAM_NAMES = ("music", "upper", "lower")
 PARTS = ("upper", "lower")
+DTYPES = {"f32": np.dtype("<f4"), "f16": np.dtype("<f2")}  # file dtype -> how its bytes are stored
+
+# f16 policy (docs/weights-format.md). Stored as f16: tensors of 2 or more dimensions with at least
+# F16_MIN_VALUES values (the weight matrices, convolutions, embeddings, heads and codebooks: 98.6% of the
+# default model's f32 bytes) whose values all stay finite in binary16 (|x| < 65520). Kept in f32, bit-exact:
+# every 1-D tensor and small matrix (0.14 MB in the default model: f16 would save almost nothing there), and
+# by name the tensors where a relative error of 2^-11 is not worth 0.1 MB: the Mamba dynamics
+# (A = -exp(A_log) and the step size dt = softplus(dt_proj ...) are exponentiated or compounded over every
+# step, D is a skip gain), the input/output normalisation statistics (music_mean/std, pose_mean/std: they
+# scale raw features and the decoded poses), norms, biases and the folded BatchNorm.
+F16_MIN_VALUES = 4096
+F16_KEEP_F32 = ("*.A_log", "*.D", "*dt_proj*", "seq.music_mean", "seq.music_std", "*pose_mean", "*pose_std",
+                "*norm*", "*bias", "*bn_scale", "*bn_shift", "*conv_b")
 
 
 def _np(t: torch.Tensor) -> np.ndarray:
@@ -117,14 +135,42 @@ def _strict_json(value):
   return value
 
 
-def write_dncw(path: str, tensors: dict[str, np.ndarray], metadata: dict) -> None:
+def _fits_f16(a: np.ndarray) -> bool:
+  with np.errstate(over="ignore"):
+    return bool(np.all(np.isfinite(a.astype(np.float16))))
+
+
+def f16_policy(tensors: Mapping[str, np.ndarray]) -> dict[str, str]:
+  """The file dtype ("f16" or "f32") of each tensor under the shipped models' policy (F16_KEEP_F32 above)."""
+  out = {}
+  for name, arr in tensors.items():
+    a = np.asarray(arr, dtype=np.float32)
+    keep = (a.ndim < 2 or a.size < F16_MIN_VALUES or any(fnmatch.fnmatchcase(name, p) for p in F16_KEEP_F32)
+            or not _fits_f16(a))
+    out[name] = "f32" if keep else "f16"
+  return out
+
+
+def write_dncw(path: str, tensors: dict[str, np.ndarray], metadata: dict,
+               dtypes: Mapping[str, str] | None = None) -> None:
+  """Writes `tensors` with their file dtypes: `dtypes[name]` ("f32" or "f16", e.g. from f16_policy) where
+  given, else "f16" for a numpy float16 array and "f32" for anything else. f16 rounds to nearest even; a value
+  that does not fit (|x| >= 65520) is an error, like NaN or Inf in any dtype."""
+  dtypes = dtypes or {}
   entries, blobs, offset = [], [], 0
   for name, arr in tensors.items():
+    dtype = dtypes.get(name, "f16" if np.asarray(arr).dtype == np.float16 else "f32")
+    if dtype not in DTYPES:
+      raise ValueError(f"tensor {name}: dtype {dtype!r} unsupported (supported: {', '.join(DTYPES)})")
     a = np.ascontiguousarray(arr, dtype="<f4")
     if not np.all(np.isfinite(a)):
       raise ValueError(f"tensor {name} has NaN or Inf")
+    if dtype == "f16":
+      if not _fits_f16(a):
+        raise ValueError(f"tensor {name} does not fit in f16 (max |x| {np.abs(a).max():g} > 65504)")
+      a = a.astype(DTYPES["f16"])
     raw = a.tobytes()
-    entries.append({"name": name, "dtype": "f32", "shape": list(a.shape), "offset": offset,
+    entries.append({"name": name, "dtype": dtype, "shape": list(a.shape), "offset": offset,
                     "nbytes": len(raw), "crc32": zlib.crc32(raw)})
     pad = (-len(raw)) % ALIGN
     blobs.append(raw + b"\0" * pad)
@@ -139,7 +185,8 @@ def write_dncw(path: str, tensors: dict[str, np.ndarray], metadata: dict) -> Non
 
 
 def read_dncw(path: str) -> tuple[dict, dict[str, np.ndarray]]:
-  """Returns (header JSON, tensors), checking every field the engine checks."""
+  """Returns (header JSON, tensors), checking every field the engine checks. Tensors are float32 whatever
+  their file dtype (f16 values widened exactly); the header's "tensors" entries give each one's dtype."""
   with open(path, "rb") as f:
     buf = f.read()
   if buf[:4] != MAGIC:
@@ -154,24 +201,55 @@ def read_dncw(path: str) -> tuple[dict, dict[str, np.ndarray]]:
   tensors = {}
   for e in header["tensors"]:
     start = data_start + e["offset"]
-    if e["dtype"] != "f32" or e["offset"] % ALIGN or start + e["nbytes"] > len(buf) - 4:
+    if e["dtype"] not in DTYPES:
+      raise ValueError(f"tensor {e['name']}: dtype {e['dtype']!r} unsupported (supported: {', '.join(DTYPES)})")
+    dtype = DTYPES[e["dtype"]]
+    if e["offset"] % ALIGN or start + e["nbytes"] > len(buf) - 4:
       raise ValueError(f"bad tensor entry {e['name']}")
-    if e["nbytes"] != 4 * int(np.prod(e["shape"])):
+    if e["nbytes"] != dtype.itemsize * int(np.prod(e["shape"])):
       raise ValueError(f"nbytes mismatch for {e['name']}")
     raw = buf[start:start + e["nbytes"]]
     if zlib.crc32(raw) != e["crc32"]:
       raise ValueError(f"CRC mismatch for {e['name']}")
-    tensors[e["name"]] = np.frombuffer(raw, dtype="<f4").reshape(e["shape"]).copy()
+    a = np.frombuffer(raw, dtype=dtype).reshape(e["shape"]).astype(np.float32)
+    if not np.all(np.isfinite(a)):
+      raise ValueError(f"tensor {e['name']} has NaN or Inf")
+    tensors[e["name"]] = a
   return header, tensors
 
 
-def export_model(path: str, model: Danceba, vqs: dict[str, PoseVQVAE], extra: dict) -> dict:
-  """Writes model + both VQ-VAEs to `path`; returns the metadata written."""
+def convert_dncw(src: str, dst: str, dtype: str = "f16") -> dict[str, str]:
+  """Rewrites `src` as `dst` with the same header metadata and tensor order: "f16" stores the tensors
+  f16_policy picks as f16 (the others stay bit-exact), "f32" stores everything as f32 (f16 values exactly).
+  Returns the dtypes written. `src` and `dst` may be the same path."""
+  if dtype not in DTYPES:
+    raise ValueError(f"dtype {dtype!r} unsupported (supported: {', '.join(DTYPES)})")
+  header, tensors = read_dncw(src)
+  dtypes = f16_policy(tensors) if dtype == "f16" else {name: "f32" for name in tensors}
+  write_dncw(dst, tensors, header.get("metadata", {}), dtypes)
+  return dtypes
+
+
+def dtype_summary(header: dict) -> str:
+  """Tensor count and stored bytes per dtype of a header's tensor entries, e.g. "f16: 180 tensors ..."."""
+  count, size = {}, {}
+  for e in header["tensors"]:
+    count[e["dtype"]] = count.get(e["dtype"], 0) + 1
+    size[e["dtype"]] = size.get(e["dtype"], 0) + e["nbytes"]
+  return ", ".join(f"{d}: {count[d]} tensors {size[d] / 1e6:.2f} MB" for d in sorted(count))
+
+
+def export_model(path: str, model: Danceba, vqs: dict[str, PoseVQVAE], extra: dict,
+                 weights_dtype: str = "f16") -> dict:
+  """Writes model + both VQ-VAEs to `path`; returns the metadata written. weights_dtype "f16" applies
+  f16_policy (the shipped models' format), "f32" stores every tensor as f32."""
   tensors = seq_tensors(model)
   for part in PARTS:
     tensors.update(vq_tensors(part, vqs[part])[0])
   meta = build_metadata(model, vqs, extra)
-  write_dncw(path, tensors, meta)
+  if weights_dtype not in DTYPES:
+    raise ValueError(f"weights_dtype {weights_dtype!r} unsupported (supported: {', '.join(DTYPES)})")
+  write_dncw(path, tensors, meta, f16_policy(tensors) if weights_dtype == "f16" else None)
   return meta
 
 
@@ -257,14 +335,47 @@ def _torch_param(model: Danceba, name: str) -> torch.Tensor:
   return obj
 
 
-def main() -> None:
+def change_summary(before: Mapping[str, np.ndarray], after: Mapping[str, np.ndarray]) -> str:
+  """How much the values of `after` differ from those of `before` (same names and shapes): max absolute
+  change; max relative change over the values in binary16's normal range (|x| >= 2^-14, where f16 rounding
+  is within 2^-11 relative; smaller values keep an absolute error <= 2^-25); values that became 0."""
+  max_abs = max_rel = 0.0
+  zeroed = 0
+  for name, b in before.items():
+    a = after[name]
+    diff = np.abs(a.astype(np.float64) - b)
+    max_abs = max(max_abs, float(diff.max(initial=0.0)))
+    normal = np.abs(b) >= 2.0 ** -14
+    max_rel = max(max_rel, float((diff[normal] / np.abs(b[normal])).max(initial=0.0)))
+    zeroed += int(np.count_nonzero((a == 0) & (b != 0)))
+  return f"max |change| {max_abs:.3g}, max relative change {max_rel:.3g} (|x| >= 2^-14), {zeroed} values -> 0"
+
+
+def main(argv: list[str] | None = None) -> None:
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  ap.add_argument("--check", help="read a .dncw file, validate it and print a summary")
-  args = ap.parse_args()
-  if args.check:
-    header, t = read_dncw(args.check)
-    n = sum(a.size for a in t.values())
-    print(f"{args.check}: {len(t)} tensors, {n} parameters, model_id={header['metadata']['model_id']}")
+  ap.add_argument("--check", metavar="FILE", help="read a .dncw file, validate it and print a summary")
+  ap.add_argument("--convert", nargs=2, metavar=("IN", "OUT"),
+                  help="rewrite IN as OUT with the tensor dtypes of --dtype (metadata unchanged), then check OUT")
+  ap.add_argument("--dtype", choices=sorted(DTYPES), default="f16",
+                  help="for --convert: f16 = the f16 policy (docs/weights-format.md), f32 = every tensor f32")
+  args = ap.parse_args(argv)
+  if not args.check and not args.convert:
+    ap.error("nothing to do: give --check FILE or --convert IN OUT")
+  if args.convert:
+    src, dst = args.convert
+    with open(src, "rb") as f:
+      size_in = len(f.read())
+    before = read_dncw(src)[1]
+    convert_dncw(src, dst, args.dtype)
+    with open(dst, "rb") as f:
+      size_out = len(f.read())
+    print(f"{src} ({size_in} bytes) -> {dst} ({size_out} bytes, {size_out / size_in:.1%}); "
+          f"{change_summary(before, read_dncw(dst)[1])}")
+  path = args.check or args.convert[1]
+  header, t = read_dncw(path)
+  n = sum(a.size for a in t.values())
+  print(f"{path}: {len(t)} tensors, {n} parameters, model_id={header['metadata']['model_id']}; "
+        f"{dtype_summary(header)}")
 
 
 if __name__ == "__main__":

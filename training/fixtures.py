@@ -42,7 +42,8 @@ def skeleton_meta() -> dict:
 
 def make_tiny(path: pathlib.Path, seed: int = 1234) -> None:
   """A random-weight model with small dims but the real feature sizes; weights scaled up so that logits
-  have clear margins (greedy parity is then robust to float rounding)."""
+  have clear margins (greedy parity is then robust to float rounding). Stored all-f32, so the engine's
+  f32 path keeps a fixture of its own (the default model is mostly f16)."""
   torch.manual_seed(seed)
   cfg = SeqConfig(feature_dim=108, pre_dim=128, codebook_size=16, d_model=32, n_heads=2, n_base=2,
                   n_head=2, attn_window=8, d_state=8, d_conv=4, expand=2, n_styles=len(STYLES), style_dim=8)
@@ -77,7 +78,7 @@ def make_tiny(path: pathlib.Path, seed: int = 1234) -> None:
     vqs[part] = vq
   export_model(str(path), model.eval(), vqs, {
       "model_id": "test-tiny", "description": "random weights, for parity tests only",
-      "features": FEATURES_META, "skeleton": skeleton_meta(), "styles": STYLES})
+      "features": FEATURES_META, "skeleton": skeleton_meta(), "styles": STYLES}, weights_dtype="f32")
 
 
 def _save(out: pathlib.Path, index: dict, name: str, arr, dtype=np.float32, note: str = "") -> None:

@@ -97,6 +97,8 @@ def main(argv=None) -> int:
   ap.add_argument("--tempo-ref", type=float, default=105.0,
                   help="dance in tempo-normalised time at this BPM (engine TempoClock); 0: fixed 30 fps rate")
   ap.add_argument("--out", default=str(REPO / "models" / "default.dncw"))
+  ap.add_argument("--weights-dtype", choices=("f16", "f32"), default="f16",
+                  help="export: f16 = big matrices as binary16 (training.export.f16_policy), f32 = all f32")
   ap.add_argument("--eval-songs", type=int, default=8)
   args = ap.parse_args(argv)
   torch.set_num_threads(args.threads)

@@ -301,7 +301,7 @@ def stage_export(args, vqs, run: pathlib.Path, log) -> None:
   for name in ("vq_report.json", "eval_report.json"):
     if (run / name).is_file():
       extra["training"][name.removesuffix(".json")] = json.loads((run / name).read_text())
-  export_model(str(out), model, vqs, extra)
+  export_model(str(out), model, vqs, extra, weights_dtype=args.weights_dtype)
   log(f"export: {out} ({out.stat().st_size / 1e6:.1f} MB)")
   if out.parent.resolve() == (td.REPO / "models").resolve():
     idx = write_fixtures(out.resolve(), td.REPO / "tests" / "golden" / out.stem)

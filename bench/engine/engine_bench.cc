@@ -3,10 +3,13 @@
 //                    pose reconstruction); the "us_per_session" counter is the cost per session.
 //   BM_ModelOnly/N   the sequence model's batched step alone.
 //   BM_Generate      a whole stream (audio front end included) over 30 s of test audio: x real time.
+//   BM_EndOfAudio/R  Session::EndOfAudio alone after 10 s of stereo audio at R Hz (the silence padding and
+//                    front-end flush a session's end costs the thread that runs it).
 // The model is models/default.dncw when it exists (or $DANCE_BENCH_MODEL), otherwise a random model with
 // the default training sizes built in memory. Memory per session is printed once at start.
 //
 //   build/bench/engine_bench --benchmark_filter=BM_Step
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -112,6 +115,24 @@ void BM_Generate(benchmark::State& state) {
                                                      benchmark::Counter::kIsRate);
 }
 BENCHMARK(BM_Generate)->Unit(benchmark::kMillisecond)->MinTime(2.0);
+
+void BM_EndOfAudio(benchmark::State& state) {
+  const int rate = static_cast<int>(state.range(0));
+  std::vector<float> audio(static_cast<size_t>(rate) * 10 * 2);
+  for (size_t i = 0; i < audio.size(); ++i) audio[i] = 0.3f * std::sin(0.01f * static_cast<float>(i / 2));
+  for (auto _ : state) {
+    state.PauseTiming();
+    SessionOptions opt;
+    opt.input_sample_rate = rate;
+    opt.input_channels = 2;
+    std::unique_ptr<Session> s = *Session::Create(BenchModel(), opt);
+    (void)s->PushAudio(audio);
+    state.ResumeTiming();
+    s->EndOfAudio();
+    benchmark::DoNotOptimize(s->StepsReady());
+  }
+}
+BENCHMARK(BM_EndOfAudio)->Arg(24000)->Arg(44100)->Unit(benchmark::kMillisecond);
 
 void PrintMemory() {
   std::vector<std::unique_ptr<Session>> s = MakeSessions(1, 1.0);

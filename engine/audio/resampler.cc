@@ -12,6 +12,7 @@
 #include "absl/strings/str_cat.h"
 #include "engine/audio/decoder.h"
 #include "engine/audio/feature_layout.h"
+#include "engine/audio/flush_denormals.h"
 
 namespace dance::engine::audio {
 
@@ -100,6 +101,8 @@ absl::Status Resampler::Open() {
 }
 
 void Resampler::FeedBlock(const float* block, int length, std::vector<float>* out) {
+  // The filter state decays into subnormals on silence: 10x slower without this (flush_denormals.h).
+  ScopedFlushDenormals flush_denormals;
   auto* s = static_cast<soxr_t>(soxr_.get());
   if (!delay_emitted_) {
     // The output starts with delay_ zeros: output sample j then depends on input up to time j only.

@@ -9,6 +9,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "engine/nn/crc32.h"
+#include "engine/nn/half.h"
 
 namespace dance::engine {
 namespace {
@@ -32,6 +33,26 @@ absl::Status Corrupt(const std::string& what) {
   return absl::DataLossError(absl::StrCat("weights file: ", what));
 }
 
+// The tensor dtypes a file may store (docs/weights-format.md); both are read into float32.
+struct StoredDtype {
+  const char* name;
+  uint64_t bytes;  // per value
+};
+constexpr StoredDtype kDtypes[] = {{"f32", 4}, {"f16", 2}};
+
+const StoredDtype* FindDtype(const std::string& name) {
+  for (const StoredDtype& d : kDtypes) {
+    if (name == d.name) return &d;
+  }
+  return nullptr;
+}
+
+std::string SupportedDtypes() {  // for error messages: "f32", "f16"
+  std::vector<std::string> quoted;
+  for (const StoredDtype& d : kDtypes) quoted.push_back(absl::StrCat("\"", d.name, "\""));
+  return absl::StrJoin(quoted, ", ");
+}
+
 // Parses one entry of the header's "tensors" list and copies its data out of `data` (data section).
 absl::StatusOr<Tensor> ReadTensor(const nlohmann::json& entry, absl::Span<const uint8_t> data) {
   if (!entry.is_object() || !entry.contains("name") || !entry["name"].is_string()) {
@@ -43,9 +64,11 @@ absl::StatusOr<Tensor> ReadTensor(const nlohmann::json& entry, absl::Span<const 
   for (const char* key : {"dtype", "shape", "offset", "nbytes", "crc32"}) {
     if (!entry.contains(key)) return Corrupt(absl::StrCat(where, "missing \"", key, "\""));
   }
-  if (!entry["dtype"].is_string() || entry["dtype"].get<std::string>() != "f32") {
-    return absl::InvalidArgumentError(
-        absl::StrCat("weights file: ", where, "dtype ", entry["dtype"].dump(), " unsupported (only f32)"));
+  const StoredDtype* dtype = nullptr;
+  if (entry["dtype"].is_string()) dtype = FindDtype(entry["dtype"].get<std::string>());
+  if (dtype == nullptr) {
+    return absl::InvalidArgumentError(absl::StrCat("weights file: ", where, "dtype ", entry["dtype"].dump(),
+                                                   " unsupported (supported: ", SupportedDtypes(), ")"));
   }
   if (!entry["shape"].is_array()) return Corrupt(absl::StrCat(where, "shape is not a list"));
   uint64_t count = 1;
@@ -62,8 +85,9 @@ absl::StatusOr<Tensor> ReadTensor(const nlohmann::json& entry, absl::Span<const 
   }
   const uint64_t offset = entry["offset"].get<uint64_t>();
   const uint64_t nbytes = entry["nbytes"].get<uint64_t>();
-  if (nbytes != count * 4) {
-    return Corrupt(absl::StrCat(where, "nbytes ", nbytes, " != 4 * product", ShapeToString(t.shape)));
+  if (nbytes != count * dtype->bytes) {
+    return Corrupt(absl::StrCat(where, "nbytes ", nbytes, " != ", dtype->bytes, " * product", ShapeToString(t.shape),
+                                " (dtype ", dtype->name, ")"));
   }
   if (offset % kAlignment != 0) return Corrupt(absl::StrCat(where, "offset ", offset, " not 64-aligned"));
   if (offset > data.size() || nbytes > data.size() - offset) {
@@ -73,7 +97,14 @@ absl::StatusOr<Tensor> ReadTensor(const nlohmann::json& entry, absl::Span<const 
   absl::Span<const uint8_t> bytes = data.subspan(offset, nbytes);
   if (Crc32(bytes) != entry["crc32"].get<uint64_t>()) return Corrupt(absl::StrCat(where, "CRC-32 mismatch"));
   t.data.resize(count);
-  std::memcpy(t.data.data(), bytes.data(), nbytes);  // little-endian host assumed (x86-64, aarch64)
+  if (dtype->bytes == 4) {
+    std::memcpy(t.data.data(), bytes.data(), nbytes);  // little-endian host assumed (x86-64, aarch64)
+  } else {
+    // f16: widened once here, so the in-memory Tensor (and everything that computes with it) stays float32.
+    for (size_t i = 0; i < t.data.size(); ++i) {
+      t.data[i] = HalfToFloat(static_cast<uint16_t>(bytes[2 * i] | bytes[2 * i + 1] << 8));
+    }
+  }
   for (size_t i = 0; i < t.data.size(); ++i) {
     if (!std::isfinite(t.data[i])) {
       return absl::InvalidArgumentError(

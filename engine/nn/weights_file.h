@@ -4,6 +4,8 @@
 // Load validates everything a corrupt or foreign file can get wrong, and returns a Status naming the
 // problem instead of crashing: magic, format version, header length and JSON, every tensor's dtype, shape,
 // nbytes and bounds, each tensor's CRC-32, the whole file's CRC-32, and that no value is NaN or Inf.
+// Tensors are stored as "f32" (IEEE binary32) or "f16" (IEEE binary16, widened exactly to float32 here);
+// in memory every Tensor is float32 whatever its stored dtype, and an unknown dtype is InvalidArgument.
 // Whether a tensor the model needs exists with the right shape is checked by the model builder through
 // `Get(name, shape)`.
 //
@@ -31,7 +33,8 @@ namespace dance::engine {
 inline constexpr char kWeightsMagic[4] = {'D', 'N', 'C', 'W'};
 inline constexpr uint32_t kWeightsVersion = 1;
 
-// One named float32 tensor, row-major (the last dimension varies fastest).
+// One named float32 tensor, row-major (the last dimension varies fastest); "f16" tensors of the file are
+// held here as their exact float32 values.
 struct Tensor {
   std::string name;
   std::vector<int64_t> shape;

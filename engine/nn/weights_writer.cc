@@ -5,6 +5,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "engine/nn/crc32.h"
+#include "engine/nn/half.h"
 #include "engine/nn/weights_file.h"
 
 namespace dance::engine {
@@ -21,8 +22,8 @@ void PadTo64(std::vector<uint8_t>& out, size_t base) {
 }  // namespace
 
 void WeightsWriter::Add(const std::string& name, const std::vector<int64_t>& shape,
-                        const std::vector<float>& values) {
-  entries_.push_back({name, shape, values});
+                        const std::vector<float>& values, Dtype dtype) {
+  entries_.push_back({name, shape, values, dtype});
 }
 
 void WeightsWriter::Remove(const std::string& name) {
@@ -35,11 +36,20 @@ std::vector<uint8_t> WeightsWriter::Serialize() const {
   for (const Entry& e : entries_) {
     PadTo64(data, 0);
     const size_t offset = data.size();
-    const size_t nbytes = e.values.size() * sizeof(float);
+    const bool f16 = e.dtype == Dtype::kF16;
+    const size_t nbytes = e.values.size() * (f16 ? 2 : sizeof(float));
     data.resize(offset + nbytes);
-    std::memcpy(data.data() + offset, e.values.data(), nbytes);
+    if (f16) {
+      for (size_t i = 0; i < e.values.size(); ++i) {
+        const uint16_t h = FloatToHalf(e.values[i]);
+        data[offset + 2 * i] = static_cast<uint8_t>(h);
+        data[offset + 2 * i + 1] = static_cast<uint8_t>(h >> 8);
+      }
+    } else {
+      std::memcpy(data.data() + offset, e.values.data(), nbytes);
+    }
     tensors.push_back({{"name", e.name},
-                       {"dtype", "f32"},
+                       {"dtype", f16 ? "f16" : "f32"},
                        {"shape", e.shape},
                        {"offset", offset},
                        {"nbytes", nbytes},

@@ -4,6 +4,7 @@
 // Usage:
 //   WeightsWriter w(metadata_json);
 //   w.Add("seq.norm_f.weight", {256}, values);
+//   w.Add("seq.head.upper", {512, 256}, head_values, WeightsWriter::Dtype::kF16);  // stored as binary16
 //   std::vector<uint8_t> bytes = w.Serialize();
 //   absl::Status s = w.WriteFile("/tmp/x.dncw");
 //
@@ -24,8 +25,13 @@ class WeightsWriter {
  public:
   explicit WeightsWriter(nlohmann::json metadata) : metadata_(std::move(metadata)) {}
 
+  // How a tensor is stored: "f32" as given, or "f16" rounded to nearest even binary16 (FloatToHalf;
+  // |x| >= 65520 becomes Inf and NaN stays NaN, which the reader refuses: tests write such files on purpose).
+  enum class Dtype { kF32, kF16 };
+
   // Adds a tensor; values.size() must equal product(shape).
-  void Add(const std::string& name, const std::vector<int64_t>& shape, const std::vector<float>& values);
+  void Add(const std::string& name, const std::vector<int64_t>& shape, const std::vector<float>& values,
+           Dtype dtype = Dtype::kF32);
 
   // Removes the tensor called `name` if present (tests build damaged variants this way).
   void Remove(const std::string& name);
@@ -39,6 +45,7 @@ class WeightsWriter {
     std::string name;
     std::vector<int64_t> shape;
     std::vector<float> values;
+    Dtype dtype;
   };
   nlohmann::json metadata_;
   std::vector<Entry> entries_;

@@ -75,6 +75,19 @@ def test_dominant_period_and_time_stretch():
   assert tempo.fit_ratio([0.85, 1.15], [1.2, 1.2], 1.2) == pytest.approx(0.0)
 
 
+def test_perfect_follower_ratio():
+  a = _dance(period=2.0, seconds=40, sway=0.0)
+  # Draws that share one period: the ideal follower scores 1.
+  assert tempo.perfect_follower_ratio(a, [a, a]) == pytest.approx(1.0, abs=0.05)
+  # The draw for 0.85x 10 % faster than the base, the one for 1.15x 10 % slower: the spread alone pulls the
+  # statistic down to 1 + (x1 log(1/1.1) + x2 log(1.1)) / (x1^2 + x2^2), x_f = log(1/f).
+  fast, slow = _dance(period=2.0 / 1.1, seconds=40, sway=0.0), _dance(period=2.2, seconds=40, sway=0.0)
+  x = np.log(1 / np.array([0.85, 1.15]))
+  expect = 1 + (x[0] * np.log(1 / 1.1) + x[1] * np.log(1.1)) / (x ** 2).sum()
+  assert expect < 0.5
+  assert tempo.perfect_follower_ratio(a, [fast, slow]) == pytest.approx(expect, abs=0.1)
+
+
 @pytest.mark.skipif(shutil.which("sox") is None, reason="sox not installed")
 def test_tempo_following_with_a_generator(tmp_path):
   wav = tmp_path / "click.wav"

@@ -5,7 +5,11 @@ and 1.15x with `sox tempo` (pitch kept); `dance-generate` dances to each; traini
 dance's dominant period scales with the music (1 = follows exactly, 0 = ignores the music). Reported per
 run (song x seed) and with the seeds pooled per song (the dominant period of the seeds' mean speed
 autocorrelation: one random dance's period is a noisy estimate of the generator's, per-run ratios of the
-same model spread over about -1.5..2).
+same model spread over about -1.5..2). Beside them, a calibration of the per-run statistic from the same
+dances: an ideal follower whose draws vary like this model's (seed s's dance to the original; for the music
+stretched by 0.85 / 1.15, the dances of seeds s+1 / s+2 to the original played exactly that much faster;
+tempo.perfect_follower_ratio),
+and the spread of the base period over seeds (std of its log) per song.
 
     /usr/bin/python3 -m training.eval.engine_tempo --model models/default.dncw [--songs validation]
         [--seeds 0 1] [--seconds 60] [--out report.json]
@@ -24,7 +28,7 @@ import tempfile
 import numpy as np
 
 from training import train_data as td
-from training.eval.tempo import pooled_tempo_following, tempo_following
+from training.eval.tempo import dominant_period, perfect_follower_ratio, pooled_tempo_following, tempo_following
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 
@@ -86,21 +90,31 @@ def main(argv=None) -> None:
       gen_many = lambda path, style=str(z["style"]): [generate(  # noqa: E731
           args.model, path, seed, style, work, args.temperature) for seed in args.seeds]
       r = pooled_tempo_following(gen_many, excerpt, work)
+      base = gen_many(excerpt)
+      if len(base) > 2:
+        n = len(base)
+        cal = [perfect_follower_ratio(base[i], [base[(i + 1) % n], base[(i + 2) % n]]) for i in range(n)]
+        periods = np.array([dominant_period(d) for d in base])
+        r.update(perfect_follower_ratios=cal, base_period_log_std=float(np.nanstd(np.log(periods))))
       r.update(id=mid)
       pooled.append(r)
       print(f"{mid} pooled over seeds {args.seeds}: ratio {r['ratio']:.3f}  periods {r['base_period_s']:.3f} -> "
             f"{['%.3f' % p for p in r['periods_s']]}", flush=True)
   ratios = [r["ratio"] for r in rows if np.isfinite(r["ratio"])]
   pooled_ratios = [r["ratio"] for r in pooled if np.isfinite(r["ratio"])]
+  cal = [c for r in pooled for c in r.get("perfect_follower_ratios", []) if np.isfinite(c)]
   report = {"model": args.model, "seconds": args.seconds, "temperature": args.temperature, "seeds": args.seeds,
             "mean_ratio": float(np.mean(ratios)) if ratios else None,
             "median_ratio": float(np.median(ratios)) if ratios else None, "runs": len(rows),
             "finite_runs": len(ratios), "rows": rows,
             "pooled_mean_ratio": float(np.mean(pooled_ratios)) if pooled_ratios else None,
-            "pooled_finite_songs": len(pooled_ratios), "pooled_rows": pooled}
+            "pooled_finite_songs": len(pooled_ratios), "pooled_rows": pooled,
+            "perfect_follower_mean_ratio": float(np.mean(cal)) if cal else None,
+            "perfect_follower_median_ratio": float(np.median(cal)) if cal else None}
   print(f"per run: mean ratio {report['mean_ratio']}, median {report['median_ratio']} over "
         f"{len(ratios)}/{len(rows)} runs; seeds pooled: mean ratio {report['pooled_mean_ratio']} over "
-        f"{len(pooled_ratios)}/{len(pooled)} songs")
+        f"{len(pooled_ratios)}/{len(pooled)} songs; an ideal follower with this model's draw-to-draw spread: "
+        f"mean {report['perfect_follower_mean_ratio']}, median {report['perfect_follower_median_ratio']}")
   if args.out:
     clean = lambda v: (None if isinstance(v, float) and not np.isfinite(v) else  # noqa: E731
                        [clean(x) for x in v] if isinstance(v, list) else

@@ -12,6 +12,7 @@ P_1; follow: P_1 / f), so it does not favour either, and it keeps octave jumps o
 Usage:
   p = dominant_period(positions)                                 # seconds
   r = tempo_following(generate, "song.ogg", workdir="/tmp/tf")   # generate(audio_path) -> (T, 24, 3)
+  c = perfect_follower_ratio(seed0, [seed1, seed2])                # what the per-run statistic can reach
 """
 from __future__ import annotations
 
@@ -99,6 +100,19 @@ def tempo_following(generate: Callable[[str], np.ndarray], audio_path: str | pat
                    else float("nan"))
   return {"base_period_s": p1, "factors": list(factors), "periods_s": periods,
           "ratio": fit_ratio(factors, periods, p1)}
+
+
+def perfect_follower_ratio(base: np.ndarray, others: list[np.ndarray], factors=FACTORS, fps: float = 30.0) -> float:
+  """The per-run statistic of tempo_following for an ideal follower whose dances vary between draws like
+  the generator's: the base period from `base`; the dance to the music stretched by factors[i] is another
+  draw (others[i]: same music, another seed, as in a real run where each version is danced anew) played
+  exactly factors[i] times faster. 1 would need every draw to share one period; the gap to 1 is what the
+  draw-to-draw spread of the period alone costs this statistic."""
+  p1 = dominant_period(base, fps)
+  if not np.isfinite(p1):
+    return float("nan")
+  periods = [dominant_period(time_stretch_motion(o, f), fps, around_s=p1) for o, f in zip(others, factors)]
+  return fit_ratio(factors, periods, p1)
 
 
 def time_stretch_motion(positions: np.ndarray, factor: float) -> np.ndarray:

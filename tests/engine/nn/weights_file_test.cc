@@ -6,6 +6,7 @@
 #include <limits>
 
 #include "absl/strings/match.h"
+#include "absl/strings/str_cat.h"
 #include "engine/nn/crc32.h"
 #include "engine/nn/weights_writer.h"
 #include "gtest/gtest.h"
@@ -109,6 +110,99 @@ TEST(WeightsFile, RefusesNanAndInf) {
     absl::Status s = WeightsFile::Parse(GoodFile(special)).status();
     EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
     EXPECT_TRUE(absl::StrContains(s.message(), "NaN/Inf")) << s;
+  }
+}
+
+// Values exactly representable in binary16: zero, -0, subnormals, the smallest normal, max-normal, ordinary.
+const std::vector<float> kHalfValues = {0.0f,
+                                        -0.0f,
+                                        std::ldexp(1.0f, -24),     // smallest subnormal
+                                        -std::ldexp(1.0f, -24),
+                                        std::ldexp(1023.0f, -24),  // largest subnormal
+                                        std::ldexp(1.0f, -14),     // smallest normal
+                                        65504.0f,                  // max normal
+                                        -65504.0f,
+                                        1.0f,
+                                        -0.3330078125f,
+                                        1.5f * std::ldexp(1.0f, -10),
+                                        1234.0f};
+
+std::vector<uint8_t> HalfFile(const std::vector<float>& values) {
+  WeightsWriter w(nlohmann::json{{"model_id", "unit-test"}});
+  w.Add("h.weight", {static_cast<int64_t>(values.size() / 2), 2}, values, WeightsWriter::Dtype::kF16);
+  w.Add("b.bias", {2}, {0.25f, -1.0f});  // f32 beside it
+  return w.Serialize();
+}
+
+uint32_t Bits(float x) {
+  uint32_t b;
+  std::memcpy(&b, &x, 4);
+  return b;
+}
+
+TEST(WeightsFile, ReadsF16TensorsExactlyAsFloat32) {
+  const std::vector<uint8_t> bytes = HalfFile(kHalfValues);
+  EXPECT_TRUE(absl::StrContains(std::string(bytes.begin(), bytes.end()), "\"dtype\":\"f16\""));
+  absl::StatusOr<WeightsFile> f = WeightsFile::Parse(bytes);
+  ASSERT_TRUE(f.ok()) << f.status();
+  absl::StatusOr<const Tensor*> h = f->Get("h.weight", {6, 2});
+  ASSERT_TRUE(h.ok()) << h.status();
+  ASSERT_EQ((*h)->data.size(), kHalfValues.size());
+  for (size_t i = 0; i < kHalfValues.size(); ++i) {
+    EXPECT_EQ(Bits((*h)->data[i]), Bits(kHalfValues[i])) << "value " << i << " = " << kHalfValues[i];
+  }
+  EXPECT_EQ(f->Find("b.bias")->data[1], -1.0f);
+}
+
+TEST(WeightsFile, F16StoresTwoBytesAndRoundsToNearest) {
+  WeightsWriter w(nlohmann::json::object());
+  w.Add("h", {2}, {0.1f, 1.0f + std::ldexp(1.0f, -11)}, WeightsWriter::Dtype::kF16);  // 0.1 -> 0x2E66; tie -> 1
+  const std::vector<uint8_t> bytes = w.Serialize();
+  EXPECT_TRUE(absl::StrContains(std::string(bytes.begin(), bytes.end()), "\"nbytes\":4,"));
+  absl::StatusOr<WeightsFile> f = WeightsFile::Parse(bytes);
+  ASSERT_TRUE(f.ok()) << f.status();
+  EXPECT_EQ(f->Find("h")->data[0], 0.0999755859375f);
+  EXPECT_EQ(f->Find("h")->data[1], 1.0f);
+}
+
+TEST(WeightsFile, RefusesF16NbytesOfTheWrongSize) {
+  std::vector<uint8_t> bad = HalfFile(kHalfValues);
+  std::string text(bad.begin(), bad.end());
+  const size_t pos = text.find("\"nbytes\":24,");  // 12 halves
+  ASSERT_NE(pos, std::string::npos);
+  bad[pos + 9] = '4';
+  bad[pos + 10] = '8';  // "nbytes":48, the size the 12 values would have as f32
+  FixFileCrc(bad);
+  absl::Status s = WeightsFile::Parse(bad).status();
+  EXPECT_EQ(s.code(), absl::StatusCode::kDataLoss);
+  EXPECT_TRUE(absl::StrContains(s.message(), "tensor 'h.weight': nbytes 48 != 2 * product[6, 2] (dtype f16)"))
+      << s;
+}
+
+TEST(WeightsFile, RefusesInfAndNanHalves) {
+  for (float special : {std::numeric_limits<float>::infinity(), -1e6f, std::numeric_limits<float>::quiet_NaN()}) {
+    std::vector<float> values = kHalfValues;
+    values[7] = special;  // Inf half (0x7C00 / 0xFC00, -1e6 overflows) or NaN half (0x7E00)
+    absl::Status s = WeightsFile::Parse(HalfFile(values)).status();
+    EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
+    EXPECT_TRUE(absl::StrContains(s.message(), "tensor 'h.weight': value 7 is")) << s;
+    EXPECT_TRUE(absl::StrContains(s.message(), "NaN/Inf not allowed")) << s;
+  }
+}
+
+TEST(WeightsFile, UnknownDtypeListsTheSupportedOnes) {
+  for (const char* dtype : {"\"i32\"", "\"f64\"", "12345"}) {  // as long as "f32", so the layout stays
+    std::vector<uint8_t> bad = GoodFile();
+    std::string text(bad.begin(), bad.end());
+    const size_t pos = text.find("\"f32\"");
+    ASSERT_NE(pos, std::string::npos);
+    std::memcpy(bad.data() + pos, dtype, 5);
+    FixFileCrc(bad);
+    absl::Status s = WeightsFile::Parse(bad).status();
+    EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << s;
+    EXPECT_TRUE(absl::StrContains(s.message(), absl::StrCat("tensor 'a.weight': dtype ", dtype, " unsupported")))
+        << s;
+    EXPECT_TRUE(absl::StrContains(s.message(), "(supported: \"f32\", \"f16\")")) << s;
   }
 }
 
