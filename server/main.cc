@@ -5,12 +5,13 @@
 //   dance-server --port 50051 --http-port 8080 --model models/default.dncw --max-sessions 200
 //
 // SIGTERM / SIGINT: stop admitting, drain live sessions for --drain-timeout, then exit.
-#include <algorithm>
 #include <signal.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <iostream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "absl/flags/flag.h"
@@ -34,7 +35,8 @@ ABSL_FLAG(int, http_port, 8080, "HTTP/WebSocket port (0 = any free port, -1 = of
 ABSL_FLAG(std::string, model, "", "Model file (.dncw). Default: models/default.dncw, else models/test-tiny.dncw.");
 ABSL_FLAG(std::string, web_root, DANCE_SOURCE_DIR "/web/dist", "Directory served at / (the built web page).");
 ABSL_FLAG(int, max_sessions, 256, "Admission limit: concurrent Perform sessions (beyond: RESOURCE_EXHAUSTED).");
-ABSL_FLAG(int, scheduler_threads, 1, "Scheduler threads stepping sessions (each owns a share of them).");
+ABSL_FLAG(int, scheduler_threads, 0,
+          "Scheduler threads stepping sessions (each owns a share of them); 0 = one per CPU core.");
 ABSL_FLAG(int, max_batch, 256, "Largest number of sessions in one batched engine step.");
 ABSL_FLAG(int, max_viewers, 64, "Watch subscribers per session.");
 ABSL_FLAG(int, max_chunk_samples, 48000, "Largest audio chunk, sample frames.");
@@ -151,6 +153,9 @@ int main(int argc, char** argv) {
   o.http_port = absl::GetFlag(FLAGS_http_port);
   o.hub.max_sessions = absl::GetFlag(FLAGS_max_sessions);
   o.hub.scheduler_threads = absl::GetFlag(FLAGS_scheduler_threads);
+  if (o.hub.scheduler_threads <= 0) {
+    o.hub.scheduler_threads = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  }
   o.hub.max_batch = absl::GetFlag(FLAGS_max_batch);
   o.hub.max_viewers_per_session = absl::GetFlag(FLAGS_max_viewers);
   o.hub.max_pending_samples = int64_t{absl::GetFlag(FLAGS_max_pending_seconds)} * absl::GetFlag(FLAGS_max_sample_rate);

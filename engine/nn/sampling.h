@@ -2,10 +2,11 @@
 //
 //   logits' = lu + w (lc - lu)      (guidance; the caller combines, see ApplyGuidance)
 //   T == 0  -> greedy: argmax, lowest index wins ties (no random draw is consumed)
-//   else    -> softmax(logits / T), keep the top_k most likely (0 = all), then the smallest prefix whose
-//              probability reaches top_p, renormalise, draw u = (gen() >> 11) * 2^-53 and walk the
+//   else    -> softmax(logits / T) in double, keep the top_k most likely (0 = all), then the smallest prefix
+//              whose probability reaches top_p, renormalise, draw u = (gen() >> 11) * 2^-53 and walk the
 //              candidates sorted by descending probability (ties: lower index first) until the cumulative
-//              probability exceeds u.
+//              probability exceeds u. The normaliser is the kept probabilities' sum: in index order when
+//              nothing is cut, else in the walk's order. Only the walked prefix is ever sorted.
 //
 // Usage:
 //   std::mt19937_64 gen(seed);
