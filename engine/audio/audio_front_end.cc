@@ -52,8 +52,9 @@ void AudioFrontEnd::ProcessMono(absl::Span<const float> mono) {
   extractor_.Push(resampled_, on_frame_);
 }
 
-absl::Status AudioFrontEnd::PushFloat(absl::Span<const float> interleaved) {
-  if (flushed_) return absl::FailedPreconditionError("PushFloat after Flush (call Reset first)");
+template <typename T, typename ToFloat>
+absl::Status AudioFrontEnd::PushInterleaved(absl::Span<const T> interleaved, const char* what, ToFloat to_float) {
+  if (flushed_) return absl::FailedPreconditionError(absl::StrCat(what, " after Flush (call Reset first)"));
   const size_t ch = static_cast<size_t>(options_.channels);
   if (interleaved.size() % ch != 0) {
     return absl::InvalidArgumentError(absl::StrCat("chunk of ", interleaved.size(),
@@ -66,14 +67,7 @@ absl::Status AudioFrontEnd::PushFloat(absl::Span<const float> interleaved) {
     mono_.resize(n);
     for (size_t i = 0; i < n; ++i) {
       float acc = 0.0f;
-      for (size_t c = 0; c < ch; ++c) {
-        float x = interleaved[(start + i) * ch + c];
-        if (!std::isfinite(x)) {
-          x = 0.0f;
-          ++sanitized_samples_;
-        }
-        acc += std::clamp(x, -kMaxSampleMagnitude, kMaxSampleMagnitude);
-      }
+      for (size_t c = 0; c < ch; ++c) acc += to_float(interleaved[(start + i) * ch + c]);
       mono_[i] = ch == 1 ? acc : acc / static_cast<float>(ch);
     }
     ProcessMono(mono_);
@@ -82,28 +76,19 @@ absl::Status AudioFrontEnd::PushFloat(absl::Span<const float> interleaved) {
   return absl::OkStatus();
 }
 
-absl::Status AudioFrontEnd::PushInt16(absl::Span<const int16_t> interleaved) {
-  if (flushed_) return absl::FailedPreconditionError("PushInt16 after Flush (call Reset first)");
-  const size_t ch = static_cast<size_t>(options_.channels);
-  if (interleaved.size() % ch != 0) {
-    return absl::InvalidArgumentError(absl::StrCat("chunk of ", interleaved.size(),
-                                                   " samples is not a whole number of ", ch,
-                                                   "-channel frames"));
-  }
-  const size_t frames = interleaved.size() / ch;
-  for (size_t start = 0; start < frames; start += kChunkFrames) {
-    const size_t n = std::min(kChunkFrames, frames - start);
-    mono_.resize(n);
-    for (size_t i = 0; i < n; ++i) {
-      float acc = 0.0f;
-      for (size_t c = 0; c < ch; ++c)
-        acc += static_cast<float>(interleaved[(start + i) * ch + c]) * (1.0f / 32768.0f);
-      mono_[i] = ch == 1 ? acc : acc / static_cast<float>(ch);
+absl::Status AudioFrontEnd::PushFloat(absl::Span<const float> interleaved) {
+  return PushInterleaved(interleaved, "PushFloat", [this](float x) {
+    if (!std::isfinite(x)) {
+      x = 0.0f;
+      ++sanitized_samples_;
     }
-    ProcessMono(mono_);
-  }
-  input_frames_ += static_cast<int64_t>(frames);
-  return absl::OkStatus();
+    return std::clamp(x, -kMaxSampleMagnitude, kMaxSampleMagnitude);
+  });
+}
+
+absl::Status AudioFrontEnd::PushInt16(absl::Span<const int16_t> interleaved) {
+  return PushInterleaved(interleaved, "PushInt16",
+                         [](int16_t x) { return static_cast<float>(x) * (1.0f / 32768.0f); });
 }
 
 absl::Status AudioFrontEnd::Flush() {

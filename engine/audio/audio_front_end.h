@@ -97,6 +97,9 @@ class AudioFrontEnd {
  private:
   AudioFrontEnd(const AudioFrontEndOptions& options, std::unique_ptr<Resampler> resampler);
   void ProcessMono(absl::Span<const float> mono);
+  // Checks, downmixes (converting each sample with to_float) and processes an interleaved chunk.
+  template <typename T, typename ToFloat>
+  absl::Status PushInterleaved(absl::Span<const T> interleaved, const char* what, ToFloat to_float);
   void OnFrame(const FrameOutput& frame);
 
   AudioFrontEndOptions options_;
