@@ -67,9 +67,25 @@ TEST(ClientIntegration, LoadTestReportsEveryField) {
   EXPECT_GE(r->p99_ms, r->p50_ms);
   auto j = nlohmann::json::parse(LoadReportJson(*r));
   for (const char* k : {"streams", "duration_s", "frames_per_s", "errors", "dropped_frames", "expected_frames",
-                        "p50_ms", "p95_ms", "p99_ms", "max_skew_ms"}) {
+                        "p50_ms", "p95_ms", "p99_ms", "max_skew_ms", "max_ms", "slow_frames"}) {
     EXPECT_TRUE(j.contains(k)) << k;
   }
+  EXPECT_EQ(j["slow_frames"].get<int64_t>(), r->slow_frames);
+}
+
+TEST(LoadAccounting, SlowFramesSummarySaysWhenAndWhere) {
+  LoadReport r;
+  EXPECT_EQ(SlowFramesSummary(r), "slow frames (>= 100 ms): none");
+  r.slow_frames = 5;
+  r.slow_streams = 2;
+  r.slow_server_share_p50 = 0.98;
+  r.slow_by_stream_second = {{0, 1}, {30, 4}};
+  r.slow_by_run_second = {{31, 5}};
+  const std::string s = SlowFramesSummary(r);
+  EXPECT_NE(s.find("5 in 2 streams"), std::string::npos) << s;
+  EXPECT_NE(s.find("0.98"), std::string::npos) << s;
+  EXPECT_NE(s.find("by second into the stream: 0s:1 30s:4"), std::string::npos) << s;
+  EXPECT_NE(s.find("by second of the run: 31s:5"), std::string::npos) << s;
 }
 
 TEST(LoadAccounting, ExpectedFramesFollowTheAudioSent) {
