@@ -83,6 +83,7 @@ absl::StatusOr<LoadReport> RunLoad(const LoadOptions& o, std::shared_ptr<const A
         }
         streams[i]->Start(now);
         started[i] = true;
+        start_at[i] = now;  // the actual start: slow frames' arrival times count from it
       }
       if (!streams[i]->done()) {
         ++live;

@@ -46,7 +46,7 @@ struct FrameStats {
   int64_t frames = 0;
   int64_t gaps = 0;                 // frames missing from the index sequence
   std::vector<float> latency_ms;    // one per frame
-  // Frames later than kSlowFrameMs, to see when stalls happen (start of a stream, one moment for all
+  // Frames at least kSlowFrameMs late, to see when stalls happen (start of a stream, one moment for all
   // streams, ...) and where (before the frame left the server, or after).
   struct Slow {
     float at_s;        // arrival, seconds since the stream started

@@ -78,7 +78,8 @@ absl::StatusOr<std::unique_ptr<DanceServer>> DanceServer::Start(std::unique_ptr<
   }
   Log(LogLevel::kInfo, "server_start",
       {{"grpc_port", s->port_}, {"http_port", s->http_port_}, {"model", s->hub_->model().model_id},
-       {"max_sessions", o.hub.max_sessions}, {"tls", !o.tls_cert_file.empty()},
+       {"max_sessions", o.hub.max_sessions}, {"scheduler_threads", o.hub.scheduler_threads},
+       {"tls", !o.tls_cert_file.empty()},
        {"auth", !o.service.auth_token.empty()}});
   return s;
 }

@@ -5,6 +5,7 @@
 //   dance-server --port 50051 --http-port 8080 --model models/default.dncw --max-sessions 200
 //
 // SIGTERM / SIGINT: stop admitting, drain live sessions for --drain-timeout, then exit.
+#include <sched.h>
 #include <signal.h>
 
 #include <algorithm>
@@ -36,7 +37,8 @@ ABSL_FLAG(std::string, model, "", "Model file (.dncw). Default: models/default.d
 ABSL_FLAG(std::string, web_root, DANCE_SOURCE_DIR "/web/dist", "Directory served at / (the built web page).");
 ABSL_FLAG(int, max_sessions, 256, "Admission limit: concurrent Perform sessions (beyond: RESOURCE_EXHAUSTED).");
 ABSL_FLAG(int, scheduler_threads, 0,
-          "Scheduler threads stepping sessions (each owns a share of them); 0 = one per CPU core.");
+          "Scheduler threads stepping sessions (each owns a share of them); 0 = one per usable CPU (affinity "
+          "mask, at most 64).");
 ABSL_FLAG(int, max_batch, 256, "Largest number of sessions in one batched engine step.");
 ABSL_FLAG(int, max_viewers, 64, "Watch subscribers per session.");
 ABSL_FLAG(int, max_chunk_samples, 48000, "Largest audio chunk, sample frames.");
@@ -98,6 +100,17 @@ std::string DefaultModel() {
   return "models/default.dncw";
 }
 
+// CPUs this process may run on (its affinity mask: taskset, cpusets), at most 64; hardware_concurrency()
+// would count every CPU of the host.
+int UsableCpus() {
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  int n = 0;
+  if (sched_getaffinity(0, sizeof(set), &set) == 0) n = CPU_COUNT(&set);
+  if (n <= 0) n = static_cast<int>(std::thread::hardware_concurrency());
+  return std::clamp(n, 1, 64);
+}
+
 // absl flags are spelled with underscores; accept the documented dashed spelling too (--http-port).
 std::vector<std::string> DashesToUnderscores(int argc, char** argv) {
   std::vector<std::string> out(argv, argv + argc);
@@ -153,9 +166,11 @@ int main(int argc, char** argv) {
   o.http_port = absl::GetFlag(FLAGS_http_port);
   o.hub.max_sessions = absl::GetFlag(FLAGS_max_sessions);
   o.hub.scheduler_threads = absl::GetFlag(FLAGS_scheduler_threads);
-  if (o.hub.scheduler_threads <= 0) {
-    o.hub.scheduler_threads = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  if (o.hub.scheduler_threads < 0) {
+    std::cerr << "dance-server: --scheduler-threads must be >= 0 (0 = one per usable CPU)\n";
+    return 2;
   }
+  if (o.hub.scheduler_threads == 0) o.hub.scheduler_threads = UsableCpus();
   o.hub.max_batch = absl::GetFlag(FLAGS_max_batch);
   o.hub.max_viewers_per_session = absl::GetFlag(FLAGS_max_viewers);
   o.hub.max_pending_samples = int64_t{absl::GetFlag(FLAGS_max_pending_seconds)} * absl::GetFlag(FLAGS_max_sample_rate);

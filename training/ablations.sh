@@ -11,11 +11,16 @@
 # VARIANT: full, no_pre, no_gate, shared_mamba, reactive.
 # Results: training/runs/abl_<name>/{train.log,eval_report.json,engine_tempo.json,engine/metrics.md}
 set -euo pipefail
+parent="$(realpath "${1:?usage: training/ablations.sh PARENT.dncw [ITERS [VARIANT...]]}")"
 cd "$(dirname "$0")/.."
-parent="${1:?usage: training/ablations.sh PARENT.dncw [ITERS]}"
 iters="${2:-200}"
 shift $(( $# < 2 ? $# : 2 ))
 wanted=("$@")
+for w in "${wanted[@]}"; do
+  case "$w" in full|no_pre|no_gate|shared_mamba|reactive) ;;
+    *) echo "ablations.sh: unknown variant '$w' (full, no_pre, no_gate, shared_mamba, reactive)" >&2; exit 2 ;;
+  esac
+done
 py="${PYTHON:-.venv/bin/python}"
 export OMP_WAIT_POLICY=PASSIVE
 for spec in "full:" "no_pre:--no-pre" "no_gate:--no-gate" "shared_mamba:--shared-mamba" "reactive:--lookahead 1"; do

@@ -167,7 +167,7 @@ def write_dncw(path: str, tensors: dict[str, np.ndarray], metadata: dict,
       raise ValueError(f"tensor {name} has NaN or Inf")
     if dtype == "f16":
       if not _fits_f16(a):
-        raise ValueError(f"tensor {name} does not fit in f16 (max |x| {np.abs(a).max():g} > 65504)")
+        raise ValueError(f"tensor {name} does not fit in f16 (max |x| {np.abs(a).max():g} would round to Inf: >= 65520)")
       a = a.astype(DTYPES["f16"])
     raw = a.tobytes()
     entries.append({"name": name, "dtype": dtype, "shape": list(a.shape), "offset": offset,

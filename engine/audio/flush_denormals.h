@@ -1,6 +1,7 @@
 // ScopedFlushDenormals: while alive, the calling thread's floating-point unit treats subnormal inputs as
 // zero and flushes subnormal results to zero (x86 SSE: MXCSR DAZ and FTZ; aarch64: FPCR.FZ); the previous
-// mode is restored on destruction. Elsewhere it does nothing.
+// mode bits are restored on destruction (exception flags raised inside the scope are kept). Elsewhere it
+// does nothing.
 //
 // Why: a recursive filter fed silence (the resampler's filter after a song ends, the padding a session's
 // EndOfAudio pushes) decays into subnormal floats, and subnormal arithmetic is 10-100x slower on x86.
@@ -35,14 +36,19 @@ class ScopedFlushDenormals {
     __asm__ __volatile__("mrs %0, fpcr" : "=r"(fpcr));
     saved_ = fpcr;
     fpcr |= uint64_t{1} << 24;  // FZ
-    __asm__ __volatile__("msr fpcr, %0" : : "r"(fpcr));
+    __asm__ __volatile__("msr fpcr, %0" : : "r"(fpcr) : "memory");
 #endif
   }
   ~ScopedFlushDenormals() {
 #if defined(DANCE_FLUSH_DENORMALS_X86)
-    _mm_setcsr(static_cast<unsigned int>(saved_));
+    const unsigned int mode = kFtz | kDaz;
+    _mm_setcsr((_mm_getcsr() & ~mode) | (static_cast<unsigned int>(saved_) & mode));
 #elif defined(__aarch64__)
-    __asm__ __volatile__("msr fpcr, %0" : : "r"(saved_));
+    constexpr uint64_t kFz = uint64_t{1} << 24;
+    uint64_t fpcr;
+    __asm__ __volatile__("mrs %0, fpcr" : "=r"(fpcr));
+    fpcr = (fpcr & ~kFz) | (saved_ & kFz);
+    __asm__ __volatile__("msr fpcr, %0" : : "r"(fpcr) : "memory");
 #endif
   }
   ScopedFlushDenormals(const ScopedFlushDenormals&) = delete;

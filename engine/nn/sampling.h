@@ -6,7 +6,9 @@
 //              whose probability reaches top_p, renormalise, draw u = (gen() >> 11) * 2^-53 and walk the
 //              candidates sorted by descending probability (ties: lower index first) until the cumulative
 //              probability exceeds u. The normaliser is the kept probabilities' sum: in index order when
-//              nothing is cut, else in the walk's order. Only the walked prefix is ever sorted.
+//              top_k keeps every code and top_p == 1, else in the walk's order (the top_p threshold is
+//              top_p times the top-k total). Only a prefix is sorted: the codes walked, at least 16 (all
+//              top_k when top_k cuts). `logits` must not be empty.
 //
 // Usage:
 //   std::mt19937_64 gen(seed);

@@ -77,8 +77,9 @@ absl::StatusOr<Tensor> ReadTensor(const nlohmann::json& entry, absl::Span<const 
       return Corrupt(absl::StrCat(where, "bad dimension ", dim.dump()));
     }
     t.shape.push_back(dim.get<int64_t>());
-    count *= static_cast<uint64_t>(t.shape.back());
-    if (count > (1ull << 34)) return Corrupt(absl::StrCat(where, "absurd size"));
+    const uint64_t d = static_cast<uint64_t>(t.shape.back());
+    if (d != 0 && count > (1ull << 34) / d) return Corrupt(absl::StrCat(where, "absurd size"));  // no wrap
+    count *= d;
   }
   for (const char* key : {"offset", "nbytes", "crc32"}) {
     if (!entry[key].is_number_unsigned()) return Corrupt(absl::StrCat(where, "\"", key, "\" is not unsigned"));

@@ -7,8 +7,10 @@ run (song x seed) and with the seeds pooled per song (the dominant period of the
 autocorrelation: one random dance's period is a noisy estimate of the generator's, per-run ratios of the
 same model spread over about -1.5..2). Beside them, a calibration of the per-run statistic from the same
 dances: an ideal follower whose draws vary like this model's (seed s's dance to the original; for the music
-stretched by 0.85 / 1.15, the dances of seeds s+1 / s+2 to the original played exactly that much faster;
-tempo.perfect_follower_ratio),
+stretched by 0.85 / 1.15, the dances of the next two seeds in --seeds (wrapping) to the original played
+exactly that much faster; tempo.perfect_follower_ratio; needs >= 3 seeds). It treats the three versions'
+dances as independent draws; a real run dances them with one seed, so if same-seed draws are correlated the
+true ceiling is higher than this calibration says.
 and the spread of the base period over seeds (std of its log) per song.
 
     /usr/bin/python3 -m training.eval.engine_tempo --model models/default.dncw [--songs validation]
@@ -70,6 +72,8 @@ def main(argv=None) -> None:
   ap.add_argument("--temperature", type=float, default=1.0)
   ap.add_argument("--out", default=None)
   args = ap.parse_args(argv)
+  if len(args.seeds) < 3:
+    print("engine_tempo: fewer than 3 seeds: the ideal-follower calibration is skipped", flush=True)
   split = td.load_split()
   ids = td.paired_ids(split[args.songs]) if args.songs in ("validation", "train") else args.songs.split(",")
   rows, pooled = [], []
