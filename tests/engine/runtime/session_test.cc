@@ -39,6 +39,17 @@ void DrainSteps(Session& s) {
   while (s.StepsReady() > 0) ASSERT_TRUE(s.Step().ok());
 }
 
+// Steps taken over the second half of `audio` (after the beat tracker has settled on the first half).
+double StepsInSecondHalf(Session& s, const std::vector<float>& audio) {
+  const size_t half = audio.size() / 2;
+  EXPECT_TRUE(s.PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
+  DrainSteps(s);
+  const int64_t at_half = s.steps_done();
+  EXPECT_TRUE(s.PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
+  DrainSteps(s);
+  return static_cast<double>(s.steps_done() - at_half);
+}
+
 // Pushes `audio` in the given chunk sizes (cycled), stepping whenever possible, then ends the stream.
 std::vector<PoseFrame> RunStream(Session& s, const std::vector<float>& audio, const std::vector<size_t>& chunks) {
   size_t pos = 0, i = 0;
@@ -355,14 +366,7 @@ TEST(WarpedSession, StepsFollowTheMusicTempo) {
   auto model = WarpedTinyModel(105.0);
   auto steps_in_second_half = [&](double bpm) {
     auto s = MakeSession(model);
-    const std::vector<float> audio = testing::ClickAudio(20.0, bpm);
-    const size_t half = audio.size() / 2;
-    EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
-    DrainSteps(*s);
-    const int64_t at_half = s->steps_done();
-    EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
-    DrainSteps(*s);
-    return static_cast<double>(s->steps_done() - at_half);
+    return StepsInSecondHalf(*s, testing::ClickAudio(20.0, bpm));
   };
   const double fast = steps_in_second_half(140.0), slow = steps_in_second_half(90.0);
   // 300 real frames / 4 frames per step x rate.
@@ -469,14 +473,7 @@ TEST(WarpedSession, EachStyleHasItsOwnReferenceTempo) {
     SessionOptions opt;
     opt.style = std::move(style);
     auto s = MakeSession(model, opt);
-    const std::vector<float> audio = testing::ClickAudio(20.0, 140.0);
-    const size_t half = audio.size() / 2;
-    EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
-    DrainSteps(*s);
-    const int64_t at_half = s->steps_done();
-    EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
-    DrainSteps(*s);
-    return static_cast<double>(s->steps_done() - at_half);
+    return StepsInSecondHalf(*s, testing::ClickAudio(20.0, 140.0));
   };
   EXPECT_NEAR(steps_in_second_half({{"tango", 1.0f}}), 75.0 * 140.0 / 128.0, 2.0);
   EXPECT_NEAR(steps_in_second_half({{"waltz", 1.0f}}), 75.0 * 70.0 / 87.0, 2.0);
