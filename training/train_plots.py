@@ -34,17 +34,34 @@ def plot_vq(run: pathlib.Path, out: pathlib.Path) -> None:
   plt.close(fig)
 
 
+def _phases(runs: list[tuple[pathlib.Path, str]]) -> list[tuple[pathlib.Path, str, int]]:
+  """(run, label, iteration offset): a run with a fixed-rate phase (<run>/pretrain, training.train) is
+  drawn as that phase followed by its tempo-normalised phase."""
+  out = []
+  for run, label in runs:
+    pre = run / "pretrain" / "seq_history.json"
+    if pre.is_file():
+      h = json.loads(pre.read_text())
+      out.append((run / "pretrain", f"{label}: fixed-rate phase", 0))
+      out.append((run, f"{label}: tempo-normalised phase", max(r["iter"] for r in h)))
+    else:
+      out.append((run, label, 0))
+  return out
+
+
 def plot_seq(runs: list[tuple[pathlib.Path, str]], out: pathlib.Path) -> None:
   fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
-  for run, label in runs:
+  phases = _phases(runs)
+  main_run = _phases(runs[:1])[-1][0]  # its training loss and wrong-music loss are drawn too
+  for run, label, offset in phases:
     p = run / "seq_history.json"
     if not p.is_file():
       continue
-    h = json.loads(p.read_text())
+    h = [dict(r, iter=r["iter"] + offset) for r in json.loads(p.read_text())]
     tr = [r for r in h if "loss" in r]
     va = [r for r in h if "val_loss" in r]
     line, = axes[0].plot([r["iter"] for r in va], [r["val_loss"] for r in va], label=f"{label} val")
-    if label == runs[0][1]:
+    if run == main_run:
       axes[0].plot([r["iter"] for r in tr], [r["loss"] for r in tr], alpha=0.3, color=line.get_color(),
                    label=f"{label} train (masked inputs)")
       axes[0].plot([r["iter"] for r in va], [r["val_loss_wrong_music"] for r in va], "--",
@@ -65,13 +82,18 @@ def main() -> None:
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   ap.add_argument("run")
   ap.add_argument("--out", default="docs/images")
+  ap.add_argument("--label", default="default")
   ap.add_argument("--extra", nargs="*", default=[], help="RUN_DIR:LABEL of ablation runs")
   args = ap.parse_args()
-  out = pathlib.Path(args.out)
+  plot_run(pathlib.Path(args.run), pathlib.Path(args.out), args.label,
+           [(pathlib.Path(e.split(":")[0]), e.split(":")[1]) for e in args.extra])
+
+
+def plot_run(run: pathlib.Path, out: pathlib.Path, label: str = "default",
+             extra: list[tuple[pathlib.Path, str]] | None = None) -> None:
   out.mkdir(parents=True, exist_ok=True)
-  run = pathlib.Path(args.run)
   plot_vq(run, out)
-  plot_seq([(run, "default")] + [(pathlib.Path(e.split(":")[0]), e.split(":")[1]) for e in args.extra], out)
+  plot_seq([(run, label)] + list(extra or []), out)
 
 
 if __name__ == "__main__":

@@ -293,7 +293,8 @@ def stage_export(args, vqs, run: pathlib.Path, log) -> None:
   from training.fixtures import FEATURES_META, skeleton_meta, write_fixtures
   model = load_seq(run)
   out = pathlib.Path(args.out)
-  extra = {"model_id": out.stem + "-" + time.strftime("%Y%m%d"), "features": FEATURES_META,
+  model_id = getattr(args, "model_id", None) or out.stem + "-" + time.strftime("%Y%m%d")
+  extra = {"model_id": model_id, "features": FEATURES_META,
            "skeleton": skeleton_meta(), "styles": td.STYLES, "training": {"run": str(run)},
            "time_base": ({"kind": "tempo", "reference_bpm": float(args.tempo_ref),
                           "style_reference_bpm": style_refs_of(args, run, log)} if args.tempo_ref > 0

@@ -118,8 +118,10 @@ void Dot3(const float* a, const float* b, Eigen::Index b_stride, int n, float ou
 void RmsNorm(const ConstColsRef& x, const Eigen::VectorXf& weight, float eps, ColsRef out) {
   const Eigen::Index d = x.rows();
   for (Eigen::Index j = 0; j < x.cols(); ++j) {
-    const float ms = x.col(j).squaredNorm() / static_cast<float>(d);
-    const float inv = 1.0f / std::sqrt(ms + eps);
+    // Mean square and its inverse root in double: the float sum over d values would add its own rounding
+    // (~1e-7 relative) to every layer's output, the largest share of the last norm's error budget.
+    const double ms = x.col(j).cast<double>().squaredNorm() / static_cast<double>(d);
+    const float inv = static_cast<float>(1.0 / std::sqrt(ms + eps));
     out.col(j) = x.col(j).cwiseProduct(weight) * inv;
   }
 }

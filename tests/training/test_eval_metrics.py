@@ -88,6 +88,20 @@ def test_perfect_follower_ratio():
   assert tempo.perfect_follower_ratio(a, [fast, slow]) == pytest.approx(expect, abs=0.1)
 
 
+def test_section_follower_ratios():
+  # A dance with one steady period: every section is the same draw, the ideal follower scores 1.
+  steady = _dance(period=2.0, seconds=70, sway=0.0)
+  r = tempo.section_follower_ratios(steady, window_s=30, hop_s=10)
+  assert len(r) == 5 and np.allclose(r, 1.0, atol=0.05)
+  # Sections alternating between two periods 10 % apart: each triple is off 1 (by the formula of
+  # test_perfect_follower_ratio: 1.34 with base A, 0.66 with base B), the errors cancel in the mean.
+  a, b = _dance(period=2.0, seconds=30, sway=0.0), _dance(period=2.2, seconds=30, sway=0.0)
+  r = tempo.section_follower_ratios(np.concatenate([a, b, a, b]), window_s=30, hop_s=30)
+  assert len(r) == 4 and np.allclose(sorted(r), [0.66, 0.66, 1.34, 1.34], atol=0.1)
+  # Fewer than three sections: nothing to report.
+  assert tempo.section_follower_ratios(steady[:45 * 30], window_s=30, hop_s=10) == []
+
+
 @pytest.mark.skipif(shutil.which("sox") is None, reason="sox not installed")
 def test_tempo_following_with_a_generator(tmp_path):
   wav = tmp_path / "click.wav"

@@ -62,6 +62,21 @@ def _cmd_tempo(args) -> dict:
               f"{[round(p, 3) for p in r['periods_s']]}, ratio {r['ratio']:.3f}")
       out[name] = {"mean_ratio": float(np.nanmean(ratios)), "ratios": ratios}
       print(f"{name}: mean ratio {out[name]['mean_ratio']:.3f}")
+  # What the per-run statistic gives a dancer-like ideal follower: sections of the real dances as draws
+  # (all paired Tang dances: the validation ones alone have too few sections).
+  ids = evaluate.split_ids("validation") + evaluate.split_ids("train")
+  for window in (30.0, 60.0):
+    by_style: dict[str, list[float]] = {}
+    for d in evaluate.cached_dances(ids):
+      by_style.setdefault(d.style, []).extend(tempo.section_follower_ratios(d.positions, window_s=window))
+    name = f"real, {window:.0f} s sections as draws (ideal follower)"
+    allr = [r for v in by_style.values() for r in v]
+    out[name] = {"mean_ratio": float(np.mean(allr)) if allr else None,
+                 "median_ratio": float(np.median(allr)) if allr else None, "runs": len(allr),
+                 "by_style": {k: {"mean": float(np.mean(v)), "median": float(np.median(v)), "runs": len(v)}
+                              for k, v in sorted(by_style.items()) if v}}
+    print(f"{name}: mean {out[name]['mean_ratio']}, median {out[name]['median_ratio']} over {len(allr)} "
+          f"section triples; by style {json.dumps(out[name]['by_style'])}")
   if args.json:
     pathlib.Path(args.json).write_text(json.dumps(out, indent=1))
   return out

@@ -13,6 +13,7 @@ Usage:
   p = dominant_period(positions)                                 # seconds
   r = tempo_following(generate, "song.ogg", workdir="/tmp/tf")   # generate(audio_path) -> (T, 24, 3)
   c = perfect_follower_ratio(seed0, [seed1, seed2])                # what the per-run statistic can reach
+  cs = section_follower_ratios(real_positions, window_s=30)        # the same, a real dancer's sections as draws
 """
 from __future__ import annotations
 
@@ -113,6 +114,24 @@ def perfect_follower_ratio(base: np.ndarray, others: list[np.ndarray], factors=F
     return float("nan")
   periods = [dominant_period(time_stretch_motion(o, f), fps, around_s=p1) for o, f in zip(others, factors)]
   return fit_ratio(factors, periods, p1)
+
+
+def section_follower_ratios(positions: np.ndarray, window_s: float = 30.0, hop_s: float = 10.0,
+                            factors=FACTORS, fps: float = 30.0) -> list[float]:
+  """perfect_follower_ratio with sections of one dance as the draws: the windows starting every hop_s
+  seconds, each the base once and the next two (wrapping) its two stretched versions. Applied to a real
+  dance, this is what a generator whose draws vary like the dancer's own sections would score on the
+  per-run statistic (the dancer's variation from section to section plus the estimator's noise on
+  window_s-long excerpts). Empty if the dance has fewer than three windows; NaN entries are dropped."""
+  w = int(round(window_s * fps))
+  starts = range(0, len(positions) - w + 1, int(round(hop_s * fps)))
+  sections = [positions[a:a + w] for a in starts]
+  n = len(sections)
+  if n < 3:
+    return []
+  ratios = [perfect_follower_ratio(sections[i], [sections[(i + 1) % n], sections[(i + 2) % n]], factors, fps)
+            for i in range(n)]
+  return [r for r in ratios if np.isfinite(r)]
 
 
 def time_stretch_motion(positions: np.ndarray, factor: float) -> np.ndarray:
