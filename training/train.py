@@ -118,6 +118,9 @@ def main(argv=None) -> int:
   ap.add_argument("--no-pre", action="store_true")
   ap.add_argument("--no-gate", action="store_true")
   ap.add_argument("--shared-mamba", action="store_true")
+  ap.add_argument("--bar-clock", action="store_true",
+                  help="tempo-normalised runs: the bar clock replaces the beat tracker's bar phase (docs/model.md "
+                       "section 1); measured no better on tempo following (docs/training.md), so off by default")
   ap.add_argument("--tempo-factors", default=",".join(str(f) for f in td.TEMPO_FACTORS))
   ap.add_argument("--vq-run", default=None, help="take the VQ-VAEs from this run directory")
   ap.add_argument("--vq-model", default=None, help="take the VQ-VAEs from this exported .dncw file")

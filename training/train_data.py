@@ -25,6 +25,7 @@ from training.features.extract import extract_clock, extract_features
 REPO = pathlib.Path(__file__).resolve().parents[1]
 MOTION_CACHE = REPO / "training" / "cache" / "motion"
 STRETCH_CACHE = REPO / "training" / "cache" / "stretched_audio"
+BAR_PHASE_COS = 105  # feature index of bar_phase (cos, sin): docs/features.md
 FEATURE_CACHE = REPO / "training" / "cache" / "features"
 STYLES = ["cha-cha", "rumba", "tango", "waltz", "salsa", "pop"]
 TEMPO_FACTORS = (0.8, 0.9, 1.0, 1.1, 1.25)
@@ -119,19 +120,32 @@ def style_reference_tempi(ids: list[str], default_bpm: float) -> dict[str, float
   return refs
 
 
-def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int = 4) -> Clip:
+# The bar clock of tempo-normalised models (docs/model.md section 1; training --bar-clock): beats per bar
+# by style; the export writes it into the model's time_base, the engine's session applies it.
+BAR_CLOCK = {"beats_per_bar": 4, "style_beats_per_bar": {"waltz": 3}}
+
+
+def bar_beats_of(style: str, bar_clock: dict | None) -> int:
+  if not bar_clock:
+    return 0
+  return int(bar_clock.get("style_beats_per_bar", {}).get(style, bar_clock["beats_per_bar"]))
+
+
+def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int = 4, bar_beats: int = 0) -> Clip:
   """A paired dance on the tempo-normalised timeline of the engine's TempoClock (docs/model.md section 8):
   warped frame j takes the features and PRE of its source frame and the motion at its real position
   (linear interpolation of joint positions), so every song plays at `reference_bpm`. The clip starts at
   the first step boundary (a multiple of frames_per_step on the song's warped timeline, as the engine's
-  steps) at or after the dance's first frame and ends where the dance or the music ends."""
+  steps) at or after the dance's first frame and ends where the dance or the music ends. bar_beats > 0: the
+  `bar_phase` features are the bar clock's (the engine's audio::BarClockPhase of warped frame j, from
+  `dance-features --clock --bar-beats`), as a session of a model with a bar clock sees them."""
   z = np.load(MOTION_CACHE / f"{motion_id}.npz")
   pos = z["positions"].astype(np.float64)
   audio = str(z["audio_path"])
   if not pathlib.Path(audio).is_absolute():
     audio = str((REPO / audio).resolve())
   m = extract_features(audio, cache_dir=FEATURE_CACHE)
-  clock = extract_clock(audio, reference_bpm, cache_dir=FEATURE_CACHE).astype(np.float64)
+  clock = extract_clock(audio, reference_bpm, cache_dir=FEATURE_CACHE, bar_beats=bar_beats).astype(np.float64)
   n0 = int(round(float(z["audio_offset_s"]) * 30))
   src, x = clock[:, 0].astype(np.int64), clock[:, 1] - n0   # x: position in the dance's own frames
   ok = np.flatnonzero((x >= 0) & (x <= len(pos) - 1) & (src < len(m["features"])))
@@ -147,6 +161,8 @@ def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int 
   clip = Clip(motion_id, 1.0, STYLES.index(str(z["style"])), upper.astype(np.float32), lower.astype(np.float32),
               warped.astype(np.float32))
   clip.features = m["features"][src[sel]].astype(np.float32)
+  if bar_beats > 0:
+    clip.features[:, BAR_PHASE_COS:BAR_PHASE_COS + 2] = clock[sel, 2:4].astype(np.float32)
   clip.pre = m["pre"][src[sel]].astype(np.float32)
   clip.audio_path, clip.audio_offset_s = audio, float(z["audio_offset_s"])
   return clip

@@ -40,10 +40,11 @@ def tokenize(clip: td.Clip, vqs) -> dict:
 
 
 def build_tokens(ids, factors, vqs, log, cache: pathlib.Path | None = None,
-                 style_refs: dict[str, float] | None = None) -> list[dict]:
+                 style_refs: dict[str, float] | None = None, bar_clock: dict | None = None) -> list[dict]:
   """Tokens of every (clip, factor); cached in `cache` (a file next to the VQ-VAE checkpoints) if given.
   style_refs: clips on the engine's tempo-normalised timeline (train_data.load_warped_clip) at their
-  style's reference tempo, one per song (the clock removes the tempo, so tempo factors are not used)."""
+  style's reference tempo, one per song (the clock removes the tempo, so tempo factors are not used).
+  bar_clock (with style_refs): the bar phase features are the bar clock's (train_data.BAR_CLOCK)."""
   if style_refs:
     factors = (1.0,)
   if cache is not None and cache.is_file():
@@ -55,7 +56,7 @@ def build_tokens(ids, factors, vqs, log, cache: pathlib.Path | None = None,
     for f in factors:
       if style_refs:
         style = str(np.load(td.MOTION_CACHE / f"{i}.npz")["style"])
-        clip = td.load_warped_clip(i, style_refs[style])
+        clip = td.load_warped_clip(i, style_refs[style], bar_beats=td.bar_beats_of(style, bar_clock))
       else:
         clip = td.load_clip(i, f)
       toks.append(tokenize(clip, vqs))
@@ -121,8 +122,16 @@ def style_refs_of(args, run: pathlib.Path, log) -> dict[str, float] | None:
   return refs
 
 
-def warp_tag(refs: dict[str, float]) -> str:
-  return "warp_" + "_".join(f"{refs[s]:g}" for s in sorted(refs))
+def warp_tag(refs: dict[str, float], bar_clock: dict | None = None) -> str:
+  tag = "warp_" + "_".join(f"{refs[s]:g}" for s in sorted(refs))
+  if bar_clock:
+    tag += "_bar" + "_".join(str(td.bar_beats_of(s, bar_clock)) for s in sorted(refs))
+  return tag
+
+
+def bar_clock_of(args) -> dict | None:
+  """The bar clock of a tempo-normalised run with --bar-clock (None otherwise)."""
+  return td.BAR_CLOCK if args.tempo_ref > 0 and getattr(args, "bar_clock", False) else None
 
 
 def loss_of(model, inputs, targets) -> torch.Tensor:
@@ -155,10 +164,11 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
   val_ids = td.paired_ids(split["validation"])
   vq_dir = pathlib.Path(args.vq_run) if args.vq_run else run
   refs = style_refs_of(args, run, log)
-  tag = warp_tag(refs) if refs else "_".join(f"{f:g}" for f in factors)
+  bars = bar_clock_of(args)
+  tag = warp_tag(refs, bars) if refs else "_".join(f"{f:g}" for f in factors)
   vq_dir.mkdir(parents=True, exist_ok=True)
-  train_toks = build_tokens(train_ids, factors, vqs, log, vq_dir / f"tokens_train_{tag}.pt", refs)
-  val_toks = build_tokens(val_ids, (1.0,), vqs, log, vq_dir / f"tokens_val_{tag}.pt", refs)
+  train_toks = build_tokens(train_ids, factors, vqs, log, vq_dir / f"tokens_train_{tag}.pt", refs, bars)
+  val_toks = build_tokens(val_ids, (1.0,), vqs, log, vq_dir / f"tokens_val_{tag}.pt", refs, bars)
   torch.manual_seed(0)
   rng = np.random.default_rng(0)
   if args.init_model:
@@ -268,9 +278,10 @@ def stage_engine_eval(args, vqs, run: pathlib.Path, log) -> dict:
   model = load_seq(run)
   split = td.load_split()
   refs = style_refs_of(args, run, log)
+  bars = bar_clock_of(args)
   val_toks = build_tokens(td.paired_ids(split["validation"]), (1.0,), vqs, log,
-                          (pathlib.Path(args.vq_run) if args.vq_run else run) / f"tokens_val_{warp_tag(refs)}.pt",
-                          refs)
+                          (pathlib.Path(args.vq_run) if args.vq_run else run) / f"tokens_val_{warp_tag(refs, bars)}.pt",
+                          refs, bars)
   report = {"losses": validation(model, val_toks, model.cfg, n_batches=12)}
   log(f"eval losses: {json.dumps(report['losses'])}")
   if not pathlib.Path(args.out).is_file():
@@ -299,6 +310,8 @@ def stage_export(args, vqs, run: pathlib.Path, log) -> None:
            "time_base": ({"kind": "tempo", "reference_bpm": float(args.tempo_ref),
                           "style_reference_bpm": style_refs_of(args, run, log)} if args.tempo_ref > 0
                          else {"kind": "fixed"})}
+  if bar_clock_of(args):
+    extra["time_base"]["bar_clock"] = bar_clock_of(args)
   for name in ("vq_report.json", "eval_report.json"):
     if (run / name).is_file():
       extra["training"][name.removesuffix(".json")] = json.loads((run / name).read_text())

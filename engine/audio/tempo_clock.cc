@@ -47,4 +47,15 @@ TempoClock::Span TempoClock::Push(double tempo_bpm) {
   return s;
 }
 
+double BarClockFrames(int beats_per_bar, double reference_bpm) {
+  return beats_per_bar * 60.0 * kFrameRate / reference_bpm;
+}
+
+void BarClockPhase(int64_t warped_frame, double bar_frames, float* features) {
+  const double x = static_cast<double>(warped_frame) / bar_frames;
+  const double a = 2.0 * 3.14159265358979323846 * (x - std::floor(x));
+  features[kBarPhaseCosIndex] = static_cast<float>(std::cos(a));
+  features[kBarPhaseSinIndex] = static_cast<float>(std::sin(a));
+}
+
 }  // namespace dance::engine::audio

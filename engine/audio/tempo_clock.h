@@ -26,6 +26,8 @@
 #include <cmath>
 #include <cstdint>
 
+#include "engine/audio/feature_layout.h"
+
 namespace dance::engine::audio {
 
 struct TempoClockOptions {
@@ -82,6 +84,16 @@ class TempoClock {
   int octave_ = 0;  // folded = tempo * 2^octave_
   bool octave_set_ = false;
 };
+
+// The bar clock of a tempo-normalised model (runtime Model::bar_clock(), docs/model.md section 1): a
+// metronome in warped time whose phase replaces the beat tracker's bar phase in the music tokens. Its
+// period is beats_per_bar beats at the reference tempo, BarClockFrames warped frames; warped frame j has
+// phase frac(j / bar_frames). The engine's session and `dance-features --clock --bar-beats` (training)
+// both use these two functions.
+double BarClockFrames(int beats_per_bar, double reference_bpm);
+// Writes (cos, sin) of 2 pi x frac(warped_frame / bar_frames) into the bar_phase entries of `features`
+// (a kNumFeatures row).
+void BarClockPhase(int64_t warped_frame, double bar_frames, float* features);
 
 }  // namespace dance::engine::audio
 

@@ -74,6 +74,37 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
           m->style_reference_bpm_[*row] = r;
         }
       }
+      if (tb.contains("bar_clock")) {
+        const nlohmann::json& bc = tb["bar_clock"];
+        auto beats_of = [](const nlohmann::json& v) { return v.is_number_integer() ? v.get<int>() : 0; };
+        const int beats = bc.is_object() && bc.contains("beats_per_bar") ? beats_of(bc["beats_per_bar"]) : 0;
+        if (beats < 1 || beats > 16) {
+          return absl::InvalidArgumentError(
+              "weights metadata: time_base.bar_clock.beats_per_bar must be an integer in 1..16");
+        }
+        m->beats_per_bar_ = beats;
+        m->style_beats_per_bar_.assign(m->styles_.size(), beats);
+        if (bc.contains("style_beats_per_bar")) {
+          const nlohmann::json& per = bc["style_beats_per_bar"];
+          if (!per.is_object()) {
+            return absl::InvalidArgumentError(
+                "weights metadata: time_base.bar_clock.style_beats_per_bar must be an object");
+          }
+          for (const auto& [name, value] : per.items()) {
+            absl::StatusOr<int> row = m->StyleIndex(name);
+            if (!row.ok() || *row >= static_cast<int>(m->styles_.size())) {
+              return absl::InvalidArgumentError(absl::StrCat(
+                  "weights metadata: time_base.bar_clock.style_beats_per_bar names unknown style '", name, "'"));
+            }
+            const int b = beats_of(value);
+            if (b < 1 || b > 16) {
+              return absl::InvalidArgumentError(absl::StrCat(
+                  "weights metadata: time_base.bar_clock.style_beats_per_bar['", name, "'] must be in 1..16"));
+            }
+            m->style_beats_per_bar_[*row] = b;
+          }
+        }
+      }
     } else if (kind != "fixed") {
       return absl::InvalidArgumentError(
           absl::StrCat("weights metadata: unknown time_base '", tb.dump(), "' (expected kind fixed or tempo)"));

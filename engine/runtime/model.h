@@ -45,6 +45,15 @@ class Model {
     return row >= 0 && row < static_cast<int>(style_reference_bpm_.size()) ? style_reference_bpm_[row]
                                                                             : tempo_reference_bpm_;
   }
+  // The bar clock of a tempo-normalised model (metadata "time_base": {..., "bar_clock": {"beats_per_bar":
+  // B, "style_beats_per_bar": {style: B_s, ...}}}): if present, the `bar_phase` features of warped frame j
+  // are replaced by the phase of a metronome in warped time, frac(j / L), L = beats * 1800 / R warped
+  // frames (docs/model.md section 1). 0 = no bar clock (the beat tracker's bar phase is used).
+  int StyleBeatsPerBar(int row) const {
+    return row >= 0 && row < static_cast<int>(style_beats_per_bar_.size()) ? style_beats_per_bar_[row]
+                                                                             : beats_per_bar_;
+  }
+  bool bar_clock() const { return beats_per_bar_ > 0; }
   // The header metadata, for tools that copy it (feature config, training info).
   const nlohmann::json& metadata() const { return metadata_; }
 
@@ -61,6 +70,8 @@ class Model {
   nlohmann::json metadata_;
   double tempo_reference_bpm_ = 0.0;
   std::vector<double> style_reference_bpm_;  // per style row (n_styles)
+  int beats_per_bar_ = 0;                     // bar clock: default beats per bar (0 = none)
+  std::vector<int> style_beats_per_bar_;      // per style row (n_styles)
 };
 
 // Loads and validates `path`.

@@ -88,6 +88,12 @@ absl::Status Session::ApplyStyle(const std::vector<std::pair<std::string, float>
       style_reference_bpm_ = ref;
       warp_.clock.SetReference(ref);
     }
+    if (model_->bar_clock()) {
+      // The metre of the style with the largest weight (the first of equals).
+      const auto& top = *std::max_element(rows.begin(), rows.end(),
+                                          [](const auto& a, const auto& b) { return a.second < b.second; });
+      bar_frames_ = audio::BarClockFrames(model_->StyleBeatsPerBar(top.first), ref);
+    }
   }
   return absl::OkStatus();
 }
@@ -201,8 +207,9 @@ void Session::StepInputs(const float** music, const float** pre) {
     int64_t src = 0;
     for (int f = 0; f < fps; ++f) {
       src = warp_.source[first_warped + f - warp_.first_source] - first_pending_frame_;
-      std::copy_n(pending_features_.data() + src * kFeatureDims, kFeatureDims,
-                  music_token_.data() + static_cast<size_t>(f) * kFeatureDims);
+      float* row = music_token_.data() + static_cast<size_t>(f) * kFeatureDims;
+      std::copy_n(pending_features_.data() + src * kFeatureDims, kFeatureDims, row);
+      if (bar_frames_ > 0.0) audio::BarClockPhase(first_warped + f, bar_frames_, row);
     }
     *music = music_token_.data();
     *pre = pending_pre_.data() + src * kPreDims;
@@ -336,6 +343,7 @@ absl::StatusOr<SessionSnapshot> Session::Snapshot() const {
   s.lower_decoder = lower_state_;
   s.pose = pose_;
   s.warp = warp_;
+  s.bar_frames = bar_frames_;
   s.output = output_;
   return s;
 }
@@ -372,6 +380,7 @@ absl::Status Session::Restore(const SessionSnapshot& s) {
   pose_ = s.pose;
   warp_ = s.warp;
   style_reference_bpm_ = warp_.clock.options().reference_bpm;
+  bar_frames_ = s.bar_frames;
   output_ = s.output;
   return absl::OkStatus();
 }

@@ -112,6 +112,7 @@ struct SessionSnapshot {
   VqDecoderState upper_decoder, lower_decoder;
   PoseState pose;
   WarpState warp;
+  double bar_frames = 0.0;
   std::vector<PoseFrame> output;
 };
 
@@ -150,6 +151,10 @@ class Session {
   double LatencyMs() const { return model_->LatencyMs(); }
   // Steps taken so far.
   int64_t steps_done() const { return cond_.step; }
+  // The music token (frames_per_step x kNumFeatures, frame-major) the last step of a tempo-normalised
+  // model read (its bar phase is the bar clock's if the model has one); for tests. Empty before the first
+  // step and for fixed-rate models.
+  const std::vector<float>& last_warped_music_token() const { return music_token_; }
   // Approximate bytes of per-session state (caches, states, buffers).
   int64_t StateBytes() const;
   const Model& model() const { return *model_; }
@@ -195,6 +200,7 @@ class Session {
   PoseState pose_;
   WarpState warp_;
   double style_reference_bpm_ = 0.0;  // the current style's reference tempo (tempo-normalised models)
+  double bar_frames_ = 0.0;           // bar clock period in warped frames (0 = no bar clock)
   SamplerScratch sampler_;
   std::vector<float> guided_u_, guided_l_;  // (K) scratch
   std::vector<PoseFrame> output_;

@@ -1,7 +1,7 @@
 // dance-features: decodes an audio file and writes the engine's causal features as .npy arrays.
 //
 //   dance-features AUDIO --out FEATURES.npy [--pre PRE.npy] [--pre-input PRE_INPUT.npy]
-//                  [--clock CLOCK.npy [--tempo-ref BPM]] [--chunk-samples N] [--summary]
+//                  [--clock CLOCK.npy [--tempo-ref BPM] [--bar-beats B]] [--chunk-samples N] [--summary]
 //
 // FEATURES.npy: float32 (frames, 108); FEATURES.npy.json: the layout (names, index ranges, units).
 // PRE.npy: float32 (frames, 128). PRE_INPUT.npy: float32 (frames, 4), PRE's input channels (for the
@@ -9,8 +9,10 @@
 // 4096; the output does not depend on it). --summary prints one JSON line to stdout.
 // CLOCK.npy: float32 (warped frames, 2): for each frame j of the tempo-normalised timeline at
 // --tempo-ref BPM (default 105; engine/audio/tempo_clock.h), its source feature frame and its continuous
-// real frame position; training resamples features and motion with it.
+// real frame position; training resamples features and motion with it. With --bar-beats B (1..16) it
+// has 4 columns: also (cos, sin) of the bar clock's phase at B beats per bar (audio::BarClockPhase).
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -36,13 +38,14 @@ using namespace dance::engine::audio;  // NOLINT: a tool's main
 struct Flags {
   std::string audio, out, pre, pre_input, clock;
   double tempo_ref_bpm = 105.0;
+  int bar_beats = 0;
   int64_t chunk_samples = 4096;
   bool summary = false;
 };
 
 constexpr char kUsage[] =
     "usage: dance-features AUDIO --out FEATURES.npy [--pre PRE.npy] [--pre-input PRE_INPUT.npy]\n"
-    "                      [--clock CLOCK.npy [--tempo-ref BPM]] [--chunk-samples N] [--summary]\n";
+    "                      [--clock CLOCK.npy [--tempo-ref BPM] [--bar-beats B]] [--chunk-samples N] [--summary]\n";
 
 absl::Status ParseFlags(int argc, char** argv, Flags* flags) {
   for (int i = 1; i < argc; ++i) {
@@ -67,6 +70,12 @@ absl::Status ParseFlags(int argc, char** argv, Flags* flags) {
       if (s.ok() && (!absl::SimpleAtod(v, &flags->tempo_ref_bpm) || !(flags->tempo_ref_bpm >= 30.0) ||
                      !(flags->tempo_ref_bpm <= 300.0))) {
         s = absl::InvalidArgumentError(absl::StrCat("--tempo-ref must be a tempo in 30..300 BPM, got '", v, "'"));
+      }
+    } else if (arg == "--bar-beats") {
+      std::string v;
+      s = value(&v);
+      if (s.ok() && (!absl::SimpleAtoi(v, &flags->bar_beats) || flags->bar_beats < 1 || flags->bar_beats > 16)) {
+        s = absl::InvalidArgumentError(absl::StrCat("--bar-beats must be an integer in 1..16, got '", v, "'"));
       }
     } else if (arg == "--chunk-samples") {
       std::string v;
@@ -180,6 +189,7 @@ absl::Status Run(const Flags& flags) {
   }
   if (!flags.clock.empty()) {
     TempoClock clock({.reference_bpm = flags.tempo_ref_bpm});
+    const double bar_frames = flags.bar_beats > 0 ? BarClockFrames(flags.bar_beats, flags.tempo_ref_bpm) : 0.0;
     std::vector<float> rows;
     for (int64_t n = 0; n < frames; ++n) {
       const TempoClock::Span span =
@@ -187,9 +197,16 @@ absl::Status Run(const Flags& flags) {
       for (int64_t j = span.first_warped; j < span.end_warped; ++j) {
         rows.push_back(static_cast<float>(n));
         rows.push_back(static_cast<float>(span.RealPosition(j)));
+        if (flags.bar_beats > 0) {
+          std::array<float, kNumFeatures> row{};
+          BarClockPhase(j, bar_frames, row.data());
+          rows.push_back(row[kBarPhaseCosIndex]);
+          rows.push_back(row[kBarPhaseSinIndex]);
+        }
       }
     }
-    if (absl::Status s = WriteNpyFloat32(flags.clock, rows, static_cast<int64_t>(rows.size() / 2), 2);
+    const int cols = flags.bar_beats > 0 ? 4 : 2;
+    if (absl::Status s = WriteNpyFloat32(flags.clock, rows, static_cast<int64_t>(rows.size() / cols), cols);
         !s.ok()) {
       return s;
     }

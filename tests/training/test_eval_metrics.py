@@ -102,6 +102,16 @@ def test_section_follower_ratios():
   assert tempo.section_follower_ratios(steady[:45 * 30], window_s=30, hop_s=10) == []
 
 
+def test_bootstrap_se_of_the_mean_ratio():
+    from training.eval.engine_tempo import bootstrap_se
+    assert bootstrap_se([0.7]) is None
+    assert bootstrap_se([0.5] * 10) == 0.0
+    v = np.random.default_rng(3).normal(0.4, 0.8, size=400)
+    se = bootstrap_se(v)
+    assert abs(se - 0.8 / np.sqrt(400)) < 0.01
+    assert bootstrap_se(v) == se  # repeatable
+
+
 @pytest.mark.skipif(shutil.which("sox") is None, reason="sox not installed")
 def test_tempo_following_with_a_generator(tmp_path):
   wav = tmp_path / "click.wav"
@@ -194,3 +204,17 @@ def test_beat_lock_separates_locked_from_unlocked():
   other = evaluate.beat_lock(d, np.arange(0.0, 60.0, 0.71))
   assert locked["lock_r"] > 0.9 and other["lock_r"] < 3 * other["lock_chance"]
   assert locked["period_dev"] < 0.02
+
+
+def test_tracker_level_errors_fold_octaves_only():
+    from training.eval.tracker_levels import level_errors, octave_flips, window_tempi
+    base = [100.0, 120.0, 120.0, 120.0]
+    # 0.85x: exact following, an octave below (the clock folds it), and a 3/2 switch.
+    stretched = [90.0, 102.0, 51.0, 153.0]
+    e = level_errors(base, stretched, 0.85)
+    assert len(e) == 3 and abs(e[0]) < 1e-9 and abs(e[1]) < 1e-9
+    assert abs(e[2] - (np.log2(1.5) - 1.0)) < 1e-9  # 3/2 = 3/4 up to an octave: off-level
+    assert octave_flips([90.0, 102.0, 51.0, 102.0, 104.0]) == 2
+    # Window medians in music time: a version played twice as fast covers window k in half the frames.
+    tempo = np.concatenate([np.full(150, 80.0), np.full(150, 90.0)])
+    assert window_tempi(tempo, 2.0, 2) == [80.0, 90.0]

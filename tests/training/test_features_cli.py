@@ -101,6 +101,28 @@ def test_clock_maps_warped_frames_to_the_running_tempo(features_cli, song, tmp_p
     assert checked >= 5
 
 
+def test_clock_bar_phase_is_a_metronome_in_warped_time(features_cli, song, tmp_path):
+    """`--clock --bar-beats B`: two more columns, (cos, sin) of 2 pi frac(j / L) with L = B beats at the
+    reference tempo (audio::BarClockPhase); the first two columns are unchanged."""
+    ref, beats = 86.0, 3
+    plain, barred = tmp_path / "c2.npy", tmp_path / "c4.npy"
+    for path, extra in ((plain, []), (barred, ["--bar-beats", str(beats)])):
+        proc = subprocess.run([str(features_cli), str(song), "--clock", str(path), "--tempo-ref", str(ref)] + extra,
+                              capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+    c2, c4 = np.load(plain), np.load(barred)
+    assert c2.shape[1] == 2 and c4.shape == (len(c2), 4)
+    np.testing.assert_array_equal(c4[:, :2], c2)
+    j = np.arange(len(c4), dtype=np.float64)
+    bar = beats * 1800.0 / ref
+    angle = 2 * np.pi * (j / bar % 1.0)
+    np.testing.assert_allclose(c4[:, 2], np.cos(angle), atol=1e-6)
+    np.testing.assert_allclose(c4[:, 3], np.sin(angle), atol=1e-6)
+    proc = subprocess.run([str(features_cli), str(song), "--clock", str(barred), "--bar-beats", "0"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "--bar-beats" in proc.stderr
+
+
 def test_clock_refuses_a_bad_reference(features_cli, song, tmp_path):
     proc = subprocess.run([str(features_cli), str(song), "--clock", str(tmp_path / "c.npy"), "--tempo-ref", "0"],
                           capture_output=True, text=True)

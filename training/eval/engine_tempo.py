@@ -41,13 +41,13 @@ def dance_generate_bin() -> pathlib.Path:
 
 
 def generate(model: str, audio: str, seed: int, style: str, workdir: pathlib.Path,
-             temperature: float = 1.0) -> np.ndarray:
+             temperature: float = 1.0, top_p: float = 1.0, guidance: float = 1.0) -> np.ndarray:
   """Runs dance-generate on `audio`; returns positions (T, 24, 3) at 30 fps."""
   out = workdir / (pathlib.Path(audio).stem + f"_s{seed}.json")
   if out.is_file():  # already danced in this run (same model and settings: the workdir is per run)
     return np.asarray(json.loads(out.read_text())["positions"], dtype=np.float64)
   cmd = [str(dance_generate_bin()), "--audio", audio, "--out", str(out), "--model", model, "--seed", str(seed),
-         "--temperature", str(temperature), "--quiet"]
+         "--temperature", str(temperature), "--top-p", str(top_p), "--guidance", str(guidance), "--quiet"]
   if style:
     cmd += ["--style", style]
   proc = subprocess.run(cmd, capture_output=True, text=True)
@@ -63,6 +63,17 @@ def song_excerpt(audio: str, seconds: float, dst: pathlib.Path) -> str:
   return str(dst)
 
 
+def bootstrap_se(values, n_boot: int = 2000) -> float | None:
+  """Standard error of the mean of `values` by bootstrap over runs (fixed generator: repeatable). The per-run
+  ratio is heavy-tailed (one mis-picked period gives -2 or +2), so 8 seeds x 8 songs leave an s.e. of ~0.1:
+  compare models on 16 seeds or more."""
+  v = np.asarray(values, dtype=np.float64)
+  if len(v) < 2:
+    return None
+  rng = np.random.default_rng(0)
+  return float(np.std(v[rng.integers(0, len(v), size=(n_boot, len(v)))].mean(axis=1)))
+
+
 def main(argv=None) -> None:
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   ap.add_argument("--model", default=str(REPO / "models" / "default.dncw"))
@@ -70,6 +81,8 @@ def main(argv=None) -> None:
   ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
   ap.add_argument("--seconds", type=float, default=60.0)
   ap.add_argument("--temperature", type=float, default=1.0)
+  ap.add_argument("--top-p", type=float, default=1.0)
+  ap.add_argument("--guidance", type=float, default=1.0, help="style guidance (dance-generate --guidance)")
   ap.add_argument("--out", default=None)
   args = ap.parse_args(argv)
   if len(args.seeds) < 3:
@@ -84,7 +97,7 @@ def main(argv=None) -> None:
       excerpt = song_excerpt(str(z["audio_path"]), args.seconds, work / f"{mid}.wav")
       for seed in args.seeds:
         gen = lambda path, seed=seed, style=str(z["style"]): generate(  # noqa: E731
-            args.model, path, seed, style, work, args.temperature)
+            args.model, path, seed, style, work, args.temperature, args.top_p, args.guidance)
         r = tempo_following(gen, excerpt, work)
         r.update(id=mid, seed=seed)
         rows.append(r)
@@ -92,7 +105,7 @@ def main(argv=None) -> None:
               f"{['%.3f' % p for p in r['periods_s']]}", flush=True)
       # The same songs with the seeds pooled: the mean speed autocorrelation of all seeds' dances.
       gen_many = lambda path, style=str(z["style"]): [generate(  # noqa: E731
-          args.model, path, seed, style, work, args.temperature) for seed in args.seeds]
+          args.model, path, seed, style, work, args.temperature, args.top_p, args.guidance) for seed in args.seeds]
       r = pooled_tempo_following(gen_many, excerpt, work)
       base = gen_many(excerpt)
       if len(base) > 2:
@@ -107,15 +120,18 @@ def main(argv=None) -> None:
   ratios = [r["ratio"] for r in rows if np.isfinite(r["ratio"])]
   pooled_ratios = [r["ratio"] for r in pooled if np.isfinite(r["ratio"])]
   cal = [c for r in pooled for c in r.get("perfect_follower_ratios", []) if np.isfinite(c)]
-  report = {"model": args.model, "seconds": args.seconds, "temperature": args.temperature, "seeds": args.seeds,
+  report = {"model": args.model, "seconds": args.seconds, "temperature": args.temperature,
+            "top_p": args.top_p, "guidance": args.guidance, "seeds": args.seeds,
             "mean_ratio": float(np.mean(ratios)) if ratios else None,
+            "mean_ratio_se": bootstrap_se(ratios),
             "median_ratio": float(np.median(ratios)) if ratios else None, "runs": len(rows),
             "finite_runs": len(ratios), "rows": rows,
             "pooled_mean_ratio": float(np.mean(pooled_ratios)) if pooled_ratios else None,
             "pooled_finite_songs": len(pooled_ratios), "pooled_rows": pooled,
             "perfect_follower_mean_ratio": float(np.mean(cal)) if cal else None,
             "perfect_follower_median_ratio": float(np.median(cal)) if cal else None}
-  print(f"per run: mean ratio {report['mean_ratio']}, median {report['median_ratio']} over "
+  print(f"per run: mean ratio {report['mean_ratio']} (bootstrap s.e. {report['mean_ratio_se']}), median "
+        f"{report['median_ratio']} over "
         f"{len(ratios)}/{len(rows)} runs; seeds pooled: mean ratio {report['pooled_mean_ratio']} over "
         f"{len(pooled_ratios)}/{len(pooled)} songs; an ideal follower with this model's draw-to-draw spread: "
         f"mean {report['perfect_follower_mean_ratio']}, median {report['perfect_follower_median_ratio']}")

@@ -79,5 +79,37 @@ TEST(TempoClock, CopyContinuesIdentically) {
   }
 }
 
+TEST(BarClock, IsAMetronomeOfBeatsPerBarAtTheReference) {
+  // 3 beats at 86 BPM = 3 * 1800 / 86 warped frames.
+  const double bar = BarClockFrames(3, 86.0);
+  EXPECT_NEAR(bar, 5400.0 / 86.0, 1e-12);
+  std::vector<float> row(kNumFeatures, 7.0f);
+  auto phase = [&](int64_t j) {
+    BarClockPhase(j, bar, row.data());
+    return std::atan2(row[kBarPhaseSinIndex], row[kBarPhaseCosIndex]);
+  };
+  EXPECT_NEAR(phase(0), 0.0, 1e-7);
+  EXPECT_FLOAT_EQ(row[kBarPhaseCosIndex], 1.0f);
+  // Any frame: the formula.
+  for (int64_t j : {10, 100, 1000, 123456}) {
+    const double x = j / bar - std::floor(j / bar);
+    const double expected = 2.0 * M_PI * x;
+    EXPECT_NEAR(std::remainder(phase(j) - expected, 2.0 * M_PI), 0.0, 1e-6) << j;
+  }
+  // Periodic in the bar: frames a whole number of bars apart (4 bars at 90 BPM x 4 beats = 320 frames).
+  const double bar4 = BarClockFrames(4, 90.0);  // 80 frames
+  BarClockPhase(7, bar4, row.data());
+  const float c = row[kBarPhaseCosIndex], s = row[kBarPhaseSinIndex];
+  BarClockPhase(7 + 320, bar4, row.data());
+  EXPECT_NEAR(row[kBarPhaseCosIndex], c, 1e-6);
+  EXPECT_NEAR(row[kBarPhaseSinIndex], s, 1e-6);
+  // Only the two bar_phase entries are written.
+  for (int i = 0; i < kNumFeatures; ++i) {
+    if (i != kBarPhaseCosIndex && i != kBarPhaseSinIndex) {
+      EXPECT_EQ(row[i], 7.0f) << i;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace dance::engine::audio

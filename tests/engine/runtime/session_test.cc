@@ -1,8 +1,11 @@
 // Session behaviour on a C++-built tiny model: chunking invariance, batching, snapshot/restore, settings.
 #include "engine/runtime/session.h"
 
+#include <cmath>
+#include <optional>
 #include <random>
 #include <set>
+#include <tuple>
 
 #include "absl/strings/match.h"
 #include "gtest/gtest.h"
@@ -483,6 +486,89 @@ TEST(WarpedSession, EachStyleHasItsOwnReferenceTempo) {
               2.0);
 }
 
+TEST(WarpedSession, BarClockReplacesTheTrackersBarPhase) {
+  // Bar clock: 4 beats per bar, waltz 3 (waltz R = 87, tango R = 128). The bar phase of warped frame j is
+  // frac(j / L), L = beats * 1800 / R; every other feature is the source frame's, as without the clock.
+  testing::TinyModelOptions o;
+  o.tempo_reference_bpm = 105.0;
+  o.style_reference_bpm = {{"waltz", 87.0}, {"tango", 128.0}};
+  auto plain_model = LoadTinyModel(o);
+  o.bar_clock_beats = 4;
+  o.style_beats_per_bar = {{"waltz", 3}};
+  auto bar_model = LoadTinyModel(o);
+  ASSERT_TRUE(bar_model->bar_clock());
+  EXPECT_EQ(bar_model->StyleBeatsPerBar(*bar_model->StyleIndex("waltz")), 3);
+  EXPECT_EQ(bar_model->StyleBeatsPerBar(*bar_model->StyleIndex("tango")), 4);
+  EXPECT_FALSE(plain_model->bar_clock());
+  SessionOptions opt = Opts(4, Sampling(1.0f));
+  opt.style = {{"waltz", 1.0f}};
+  auto bar = MakeSession(bar_model, opt);
+  auto plain = MakeSession(plain_model, opt);
+  const std::vector<float> audio = testing::ClickAudio(8.0, 140.0);
+  const int fps = bar_model->config().frames_per_step;
+  const size_t chunk = 800;
+  int checked = 0, tracker_differs = 0;
+  std::optional<SessionSnapshot> snap;
+  for (size_t pos = 0; pos + chunk <= audio.size(); pos += chunk) {
+    if (pos == audio.size() / 2 / chunk * chunk) {
+      // Mid-stream style change: tango's metre and reference from the next step on; then a snapshot.
+      ASSERT_TRUE(bar->SetStyle({{"tango", 1.0f}}).ok());
+      ASSERT_TRUE(plain->SetStyle({{"tango", 1.0f}}).ok());
+      absl::StatusOr<SessionSnapshot> s = bar->Snapshot();
+      ASSERT_TRUE(s.ok());
+      snap = *s;
+    }
+    const bool tango = snap.has_value();
+    ASSERT_TRUE(bar->PushAudio(absl::MakeConstSpan(audio.data() + pos, chunk)).ok());
+    ASSERT_TRUE(plain->PushAudio(absl::MakeConstSpan(audio.data() + pos, chunk)).ok());
+    while (bar->StepsReady() > 0) {
+      ASSERT_GT(plain->StepsReady(), 0);
+      ASSERT_TRUE(bar->Step().ok());
+      ASSERT_TRUE(plain->Step().ok());
+      const std::vector<float>& tb = bar->last_warped_music_token();
+      const std::vector<float>& tp = plain->last_warped_music_token();
+      ASSERT_EQ(tb.size(), static_cast<size_t>(fps * audio::kNumFeatures));
+      const double period = tango ? 4 * 1800.0 / 128.0 : 3 * 1800.0 / 87.0;
+      for (int f = 0; f < fps; ++f) {
+        const int64_t j = (bar->steps_done() - 1) * fps + f;
+        const double x = j / period - std::floor(j / period);
+        const float* rb = tb.data() + f * audio::kNumFeatures;
+        const float* rp = tp.data() + f * audio::kNumFeatures;
+        ASSERT_NEAR(rb[audio::kBarPhaseCosIndex], std::cos(2.0 * M_PI * x), 1e-6) << "warped frame " << j;
+        ASSERT_NEAR(rb[audio::kBarPhaseSinIndex], std::sin(2.0 * M_PI * x), 1e-6) << "warped frame " << j;
+        for (int i = 0; i < audio::kNumFeatures; ++i) {
+          if (i != audio::kBarPhaseCosIndex && i != audio::kBarPhaseSinIndex) {
+            ASSERT_EQ(rb[i], rp[i]) << i;
+          }
+        }
+        tracker_differs += std::fabs(rp[audio::kBarPhaseCosIndex] - rb[audio::kBarPhaseCosIndex]) > 1e-3f;
+        ++checked;
+      }
+    }
+  }
+  EXPECT_GT(checked, 4 * 60);
+  EXPECT_GT(tracker_differs, checked / 2);  // the tracker's bar phase is another signal
+  // A snapshot (taken as tango) restored into a session created as a waltz continues exactly.
+  ASSERT_TRUE(snap.has_value());
+  auto restored = MakeSession(bar_model, opt);
+  ASSERT_TRUE(restored->Restore(*snap).ok());
+  auto original = MakeSession(bar_model, opt);
+  ASSERT_TRUE(original->Restore(*snap).ok());
+  const size_t from = audio.size() / 2 / chunk * chunk;
+  std::vector<float> rest(audio.begin() + from, audio.end());
+  const std::vector<PoseFrame> a = RunStream(*original, rest, {chunk});
+  ExpectSameFrames(a, RunStream(*restored, rest, {3 * chunk}));
+  // And the snapshot's bar clock is tango's, not the creating style's: the first token after restore.
+  auto probe = MakeSession(bar_model, opt);
+  ASSERT_TRUE(probe->Restore(*snap).ok());
+  ASSERT_TRUE(probe->PushAudio(absl::MakeConstSpan(rest.data(), rest.size())).ok());
+  ASSERT_GT(probe->StepsReady(), 0);
+  ASSERT_TRUE(probe->Step().ok());
+  const int64_t j = (probe->steps_done() - 1) * fps;
+  const double x = j / (4 * 1800.0 / 128.0) - std::floor(j / (4 * 1800.0 / 128.0));
+  EXPECT_NEAR(probe->last_warped_music_token()[audio::kBarPhaseCosIndex], std::cos(2.0 * M_PI * x), 1e-6);
+}
+
 TEST(WarpedSession, RefusesABadTimeBase) {
   // Reference tempo outside 30..300 BPM is refused when the model loads.
   testing::TinyModelOptions o;
@@ -498,6 +584,22 @@ TEST(WarpedSession, RefusesABadTimeBase) {
   m = LoadModel(path);
   ASSERT_FALSE(m.ok());
   EXPECT_TRUE(absl::StrContains(m.status().message(), "unknown style 'salsa'")) << m.status();
+  // Bar clock: beats per bar outside 1..16, or a style the model does not have.
+  o.style_reference_bpm = {};
+  for (const auto& [beats, style, style_beats, message] :
+       std::vector<std::tuple<int, std::string, int, std::string>>{
+           {17, "", 0, "bar_clock.beats_per_bar"},
+           {-1, "", 0, "bar_clock.beats_per_bar"},
+           {4, "waltz", 0, "style_beats_per_bar['waltz'] must be in 1..16"},
+           {4, "salsa", 3, "unknown style 'salsa'"}}) {
+    o.bar_clock_beats = beats;
+    o.style_beats_per_bar.clear();
+    if (!style.empty()) o.style_beats_per_bar = {{style, style_beats}};
+    ASSERT_TRUE(testing::TinyModelWriter(o).WriteFile(path).ok());
+    m = LoadModel(path);
+    ASSERT_FALSE(m.ok()) << beats << " " << style;
+    EXPECT_TRUE(absl::StrContains(m.status().message(), message)) << m.status();
+  }
 }
 
 }  // namespace

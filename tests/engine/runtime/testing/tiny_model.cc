@@ -115,6 +115,12 @@ WeightsWriter TinyModelWriter(const TinyModelOptions& o) {
   if (o.tempo_reference_bpm > 0.0) {
     meta["time_base"] = {{"kind", "tempo"}, {"reference_bpm", o.tempo_reference_bpm}};
     for (const auto& [name, bpm] : o.style_reference_bpm) meta["time_base"]["style_reference_bpm"][name] = bpm;
+    if (o.bar_clock_beats != 0) {
+      meta["time_base"]["bar_clock"] = {{"beats_per_bar", o.bar_clock_beats}};
+      for (const auto& [name, beats] : o.style_beats_per_bar) {
+        meta["time_base"]["bar_clock"]["style_beats_per_bar"][name] = beats;
+      }
+    }
   }
   WeightsWriter w(meta);
   Builder b(&w, o.seed, o.scale);

@@ -35,6 +35,8 @@ struct TinyModelOptions {
   float scale = 0.3f;  // weight magnitude: large enough that codes vary
   double tempo_reference_bpm = 0.0;  // > 0: metadata time_base {"kind": "tempo", "reference_bpm": ...}
   std::vector<std::pair<std::string, double>> style_reference_bpm;  // time_base.style_reference_bpm
+  int bar_clock_beats = 0;  // > 0: time_base.bar_clock.beats_per_bar (with tempo_reference_bpm)
+  std::vector<std::pair<std::string, int>> style_beats_per_bar;     // time_base.bar_clock.style_beats_per_bar
 };
 
 WeightsWriter TinyModelWriter(const TinyModelOptions& options);
