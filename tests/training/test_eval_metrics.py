@@ -218,3 +218,12 @@ def test_tracker_level_errors_fold_octaves_only():
     # Window medians in music time: a version played twice as fast covers window k in half the frames.
     tempo = np.concatenate([np.full(150, 80.0), np.full(150, 90.0)])
     assert window_tempi(tempo, 2.0, 2) == [80.0, 90.0]
+
+
+def test_bar_seconds_folds_like_the_clock():
+    from training.eval.period_in_bars import bar_seconds
+    # A waltz tracked at the eighth-note level (174 BPM) folds to 87 BPM: a 3-beat bar of 2.07 s.
+    assert abs(bar_seconds(174.0, 86.03, "waltz") - 3 * 60 / 87.0) < 1e-9
+    assert abs(bar_seconds(87.0, 86.03, "waltz") - 3 * 60 / 87.0) < 1e-9
+    # A cha-cha at 125 BPM: 4 beats.
+    assert abs(bar_seconds(125.0, 125.05, "cha-cha") - 4 * 60 / 125.0) < 1e-9
