@@ -20,13 +20,10 @@ import numpy as np
 from training import train_data as td
 from training.eval.tempo import dominant_period
 
-BEATS_PER_BAR = {"waltz": 3}  # the others: 4
-
-
 def bar_seconds(tempo_bpm: float, reference_bpm: float, style: str) -> float:
   """One bar at `tempo_bpm` folded by octaves to within sqrt 2 of the style's reference tempo."""
   folded = tempo_bpm * 2.0 ** np.round(np.log2(reference_bpm / tempo_bpm))
-  return BEATS_PER_BAR.get(style, 4) * 60.0 / folded
+  return td.bar_beats_of(style, td.BAR_CLOCK) * 60.0 / folded  # the bar clock's metre: waltz 3, others 4
 
 
 def main(argv=None) -> None:
