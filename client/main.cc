@@ -42,6 +42,7 @@ ABSL_FLAG(uint64_t, seed, 0, "Sampling seed.");
 ABSL_FLAG(double, temperature, 1.0, "Sampling temperature (0 = greedy).");
 ABSL_FLAG(int, top_k, 0, "Top-k cut (0 = off).");
 ABSL_FLAG(double, top_p, 1.0, "Nucleus cut (1 = off).");
+ABSL_FLAG(double, period_lock, -1.0, "Period lock weight (0 = off; negative = the model's default).");
 ABSL_FLAG(int, chunk_ms, 40, "Audio per message, ms.");
 ABSL_FLAG(std::string, token, "", "Bearer token (server --auth-token).");
 ABSL_FLAG(std::string, ca_cert, "", "PEM CA certificate: connect with TLS.");
@@ -113,6 +114,9 @@ int Perform() {
   po.header.mutable_sampling()->set_temperature(static_cast<float>(absl::GetFlag(FLAGS_temperature)));
   po.header.mutable_sampling()->set_top_k(absl::GetFlag(FLAGS_top_k));
   po.header.mutable_sampling()->set_top_p(static_cast<float>(absl::GetFlag(FLAGS_top_p)));
+  if (absl::GetFlag(FLAGS_period_lock) >= 0.0) {
+    po.header.mutable_sampling()->set_period_lock(static_cast<float>(absl::GetFlag(FLAGS_period_lock)));
+  }
   ParseStyle(absl::GetFlag(FLAGS_style), &po.header);
   const int64_t total_frames = source->Total();
   const int rate = source->sample_rate();

@@ -43,6 +43,12 @@ absl::StatusOr<SamplingConfig> SamplingFromProto(const dance::v1::Sampling& s) {
   c.top_k = s.top_k();
   c.top_p = s.top_p() == 0.0f ? 1.0f : s.top_p();
   c.guidance = s.guidance() == 0.0f ? 1.0f : s.guidance();
+  if (s.has_period_lock()) {
+    if (!(s.period_lock() >= 0.0f && s.period_lock() <= 100.0f)) {
+      return absl::InvalidArgumentError("sampling.period_lock must be in [0, 100]");
+    }
+    c.period_lock = s.period_lock();
+  }
   return c;
 }
 
@@ -127,7 +133,7 @@ absl::Status Number(const json& j, const char* key, T* out) {
 absl::Status SamplingJson(const json& j, dance::v1::Sampling* s, bool* any) {
   float t = 1.0f, p = 1.0f, g = 1.0f;
   int k = 0;
-  for (const char* key : {"temperature", "top_k", "top_p", "guidance"}) {
+  for (const char* key : {"temperature", "top_k", "top_p", "guidance", "period_lock"}) {
     if (j.contains(key)) *any = true;
   }
   absl::Status st;
@@ -139,6 +145,11 @@ absl::Status SamplingJson(const json& j, dance::v1::Sampling* s, bool* any) {
   s->set_top_k(k);
   s->set_top_p(p);
   s->set_guidance(g);
+  if (j.contains("period_lock")) {  // absent: the model's default
+    float lock = 0.0f;
+    st.Update(Number(j, "period_lock", &lock));
+    s->set_period_lock(lock);
+  }
   return st;
 }
 
@@ -188,7 +199,7 @@ absl::StatusOr<dance::v1::Control> ControlFromJson(const json& j) {
 nlohmann::json ModelToJson(const ModelDescription& m) {
   return json{{"model_id", m.model_id},       {"latency_ms", m.latency_ms}, {"fps", m.fps},
               {"joint_names", m.joint_names}, {"parents", m.parents},       {"rest_offsets", m.rest_offsets},
-              {"styles", m.styles}};
+              {"styles", m.styles}, {"default_period_lock", m.default_period_lock}};
 }
 
 nlohmann::json SummaryToJson(const dance::v1::SessionSummary& s) {

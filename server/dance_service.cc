@@ -284,6 +284,7 @@ grpc::ServerUnaryReactor* DanceServiceImpl::GetModelInfo(grpc::CallbackServerCon
   response->set_max_sessions(hub_->options().max_sessions);
   response->set_active_sessions(hub_->active_sessions());
   response->set_max_chunk_samples(options_.limits.max_chunk_samples);
+  response->set_default_period_lock(m.default_period_lock);
   reactor->Finish(grpc::Status::OK);
   return reactor;
 }

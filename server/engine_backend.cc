@@ -17,6 +17,7 @@ engine::SamplingOptions ToEngine(const SamplingConfig& s) {
   o.top_k = s.top_k;
   o.top_p = s.top_p;
   o.guidance = s.guidance;
+  o.period_lock = s.period_lock;
   return o;
 }
 
@@ -72,6 +73,7 @@ class EngineBackendImpl final : public EngineBackend {
     desc_.parents.assign(sk.parents.begin(), sk.parents.end());
     for (const Eigen::Vector3f& o : sk.offsets) desc_.rest_offsets.insert(desc_.rest_offsets.end(), {o.x(), o.y(), o.z()});
     desc_.styles = model_->styles();
+    desc_.default_period_lock = model_->default_period_lock();
   }
 
   const ModelDescription& Describe() const override { return desc_; }

@@ -35,6 +35,7 @@ struct SamplingConfig {
   int top_k = 0;             // 0 = off
   float top_p = 1.0f;        // 1 = off
   float guidance = 1.0f;     // 1 = off
+  float period_lock = -1.0f; // 0 = off, negative = the model's default
 };
 
 using StyleMix = std::vector<std::pair<std::string, float>>;  // (style name, weight >= 0)
@@ -58,6 +59,7 @@ struct ModelDescription {
   std::vector<int> parents;              // kNumJoints, -1 = root
   std::vector<float> rest_offsets;       // kNumJoints * 3, metres
   std::vector<std::string> styles;
+  float default_period_lock = 0.0f;  // Sampling.period_lock when absent (0 = off)
 };
 
 struct FrameData {

@@ -121,6 +121,10 @@ def main(argv=None) -> int:
   ap.add_argument("--bar-clock", action="store_true",
                   help="tempo-normalised runs: the bar clock replaces the beat tracker's bar phase (docs/model.md "
                        "section 1); measured no better on tempo following (docs/training.md), so off by default")
+  ap.add_argument("--period-lock", type=float, default=8.0,
+                  help="tempo-normalised runs: the engine's default period lock weight written into the model "
+                       "(time_base.period_lock, with each style's dance period measured on the training dances; "
+                       "docs/model.md section 7); 0 = off")
   ap.add_argument("--tempo-factors", default=",".join(str(f) for f in td.TEMPO_FACTORS))
   ap.add_argument("--vq-run", default=None, help="take the VQ-VAEs from this run directory")
   ap.add_argument("--vq-model", default=None, help="take the VQ-VAEs from this exported .dncw file")

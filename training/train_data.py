@@ -168,5 +168,24 @@ def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int 
   return clip
 
 
+def dance_period_beats(ids: list[str], refs: dict[str, float]) -> dict[str, int]:
+  """Each style's dance period in beats, measured on the paired dances in `ids` on the tempo-normalised
+  timeline: the dominant period of the warped motion (training.eval.tempo.dominant_period) over the
+  style's beat at its reference tempo (1800 / R warped frames), the median over the style's songs, rounded
+  to whole beats. Styles without paired dances are left out (no period: the engine's period lock is off
+  for them). The export writes it into the model's time_base (`dance_period_beats`)."""
+  from training.eval.tempo import dominant_period
+  by_style: dict[str, list[float]] = {}
+  for mid in ids:
+    z = np.load(MOTION_CACHE / f"{mid}.npz")
+    style = str(z["style"])
+    if not str(z["audio_path"]) or style not in refs:
+      continue
+    period_frames = dominant_period(load_warped_clip(mid, refs[style]).positions) * 30.0
+    if np.isfinite(period_frames):
+      by_style.setdefault(style, []).append(period_frames / (1800.0 / refs[style]))
+  return {style: max(1, int(round(float(np.median(b))))) for style, b in sorted(by_style.items())}
+
+
 def paired_ids(ids: list[str]) -> list[str]:
   return [i for i in ids if i.startswith("tang_")]

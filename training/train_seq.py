@@ -122,6 +122,19 @@ def style_refs_of(args, run: pathlib.Path, log) -> dict[str, float] | None:
   return refs
 
 
+def dance_periods_of(args, run: pathlib.Path, log) -> dict[str, int]:
+  """Each style's dance period in beats on the tempo-normalised timeline (train_data.dance_period_beats),
+  measured once on the training dances and kept in <run>/dance_period_beats.json; the export writes it into
+  the model for the engine's period lock."""
+  path = run / "dance_period_beats.json"
+  if path.is_file():
+    return json.loads(path.read_text())
+  periods = td.dance_period_beats(td.paired_ids(td.load_split()["train"]), style_refs_of(args, run, log))
+  log(f"dance periods (beats): {json.dumps(periods)}")
+  path.write_text(json.dumps(periods))
+  return periods
+
+
 def warp_tag(refs: dict[str, float], bar_clock: dict | None = None) -> str:
   tag = "warp_" + "_".join(f"{refs[s]:g}" for s in sorted(refs))
   if bar_clock:
@@ -312,6 +325,9 @@ def stage_export(args, vqs, run: pathlib.Path, log) -> None:
                          else {"kind": "fixed"})}
   if bar_clock_of(args):
     extra["time_base"]["bar_clock"] = bar_clock_of(args)
+  if args.tempo_ref > 0:
+    extra["time_base"]["dance_period_beats"] = dance_periods_of(args, run, log)
+    extra["time_base"]["period_lock"] = float(getattr(args, "period_lock", 0.0))
   for name in ("vq_report.json", "eval_report.json"):
     if (run / name).is_file():
       extra["training"][name.removesuffix(".json")] = json.loads((run / name).read_text())

@@ -1,6 +1,8 @@
 // Engine benchmarks (they print numbers; nothing asserts a speed):
 //   BM_Step/N        one code step of N sessions through StepBatch (sequence model + sampling + VQ decode +
 //                    pose reconstruction); the "us_per_session" counter is the cost per session.
+//   BM_StepWaltz/N/L the same with style waltz and the period lock off (L = 0) or at the model's default
+//                    (L = 1): what the lock's bias costs per step.
 //   BM_ModelOnly/N   the sequence model's batched step alone.
 //   BM_Generate      a whole stream (audio front end included) over 30 s of test audio: x real time.
 //   BM_EndOfAudio/R  Session::EndOfAudio alone after 10 s of stereo audio at R Hz (the silence padding and
@@ -8,11 +10,12 @@
 // The model is models/default.dncw when it exists (or $DANCE_BENCH_MODEL), otherwise a random model with
 // the default training sizes built in memory. Memory per session is printed once at start.
 //
-//   build/bench/engine_bench --benchmark_filter=BM_Step
+//   build/bin/engine_bench --benchmark_filter=BM_Step
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <string>
 
 #include "benchmark/benchmark.h"
 #include "engine/runtime/session.h"
@@ -40,21 +43,23 @@ std::shared_ptr<const Model> BenchModel() {
 }
 
 // Sessions with enough audio queued for `steps` steps.
-std::vector<std::unique_ptr<Session>> MakeSessions(int n, double seconds) {
+std::vector<std::unique_ptr<Session>> MakeSessions(int n, double seconds, const std::string& style = "",
+                                                  float period_lock = kModelDefaultPeriodLock) {
   const std::vector<float> audio = testing::TestAudio(seconds);
   std::vector<std::unique_ptr<Session>> out;
   for (int i = 0; i < n; ++i) {
     SessionOptions opt;
     opt.seed = static_cast<uint64_t>(i);
+    if (!style.empty() && BenchModel()->StyleIndex(style).ok()) opt.style = {{style, 1.0f}};
+    opt.sampling.period_lock = period_lock;
     out.push_back(*Session::Create(BenchModel(), opt));
     (void)out.back()->PushAudio(audio);
   }
   return out;
 }
 
-void BM_Step(benchmark::State& state) {
-  const int n = static_cast<int>(state.range(0));
-  std::vector<std::unique_ptr<Session>> sessions = MakeSessions(n, 70.0);
+void StepSessions(benchmark::State& state, std::vector<std::unique_ptr<Session>> sessions) {
+  const int n = static_cast<int>(sessions.size());
   std::vector<Session*> ptrs;
   for (auto& s : sessions) ptrs.push_back(s.get());
   std::vector<PoseFrame> sink;
@@ -74,7 +79,14 @@ void BM_Step(benchmark::State& state) {
   state.counters["us_per_session"] = benchmark::Counter(
       static_cast<double>(state.iterations()) * n, benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
 }
+void BM_Step(benchmark::State& state) { StepSessions(state, MakeSessions(static_cast<int>(state.range(0)), 70.0)); }
 BENCHMARK(BM_Step)->Arg(1)->Arg(64)->Arg(256)->Unit(benchmark::kMicrosecond);
+
+void BM_StepWaltz(benchmark::State& state) {
+  StepSessions(state, MakeSessions(static_cast<int>(state.range(0)), 70.0, "waltz",
+                                   state.range(1) == 0 ? 0.0f : kModelDefaultPeriodLock));
+}
+BENCHMARK(BM_StepWaltz)->Args({1, 0})->Args({1, 1})->Args({64, 0})->Args({64, 1})->Unit(benchmark::kMicrosecond);
 
 void BM_ModelOnly(benchmark::State& state) {
   const int n = static_cast<int>(state.range(0));

@@ -19,6 +19,10 @@ absl::Status ValidateSamplingOptions(const SamplingOptions& o) {
   if (!(o.guidance >= 0.0f) || !std::isfinite(o.guidance)) {
     return absl::InvalidArgumentError(absl::StrCat("sampling: guidance must be >= 0, got ", o.guidance));
   }
+  if (!(o.period_lock <= 100.0f) || !std::isfinite(o.period_lock)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("sampling: period_lock must be <= 100 (negative = the model's default), got ", o.period_lock));
+  }
   return absl::OkStatus();
 }
 

@@ -32,6 +32,14 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
   }
   std::shared_ptr<Model> m(new Model(std::move(seq), std::move(upper), std::move(lower)));
   m->metadata_ = weights.metadata();
+  for (int stream = 0; stream < 2; ++stream) {
+    RowMatrix unit = (stream == 0 ? m->upper_ : m->lower_).codebook();
+    for (Eigen::Index r = 0; r < unit.rows(); ++r) {
+      const float n = unit.row(r).norm();
+      if (n > 0.0f) unit.row(r) /= n;
+    }
+    m->unit_codebook_[stream] = std::move(unit);
+  }
   DANCE_ASSIGN_OR_RETURN(m->skeleton_, Skeleton::FromMetadata(m->metadata_));
   m->model_id_ = m->metadata_.value("model_id", std::string("unknown"));
   if (m->metadata_.contains("styles") && m->metadata_["styles"].is_array()) {
@@ -104,6 +112,36 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
             m->style_beats_per_bar_[*row] = b;
           }
         }
+      }
+      if (tb.contains("dance_period_beats")) {
+        const nlohmann::json& per = tb["dance_period_beats"];
+        if (!per.is_object()) {
+          return absl::InvalidArgumentError("weights metadata: time_base.dance_period_beats must be an object");
+        }
+        m->dance_period_beats_.assign(m->styles_.size(), 0.0);
+        for (const auto& [name, value] : per.items()) {
+          absl::StatusOr<int> row = m->StyleIndex(name);
+          if (!row.ok() || *row >= static_cast<int>(m->styles_.size())) {
+            return absl::InvalidArgumentError(absl::StrCat(
+                "weights metadata: time_base.dance_period_beats names unknown style '", name, "'"));
+          }
+          const double b = value.is_number() ? value.get<double>() : 0.0;
+          if (!(b >= 0.5 && b <= 16.0)) {
+            return absl::InvalidArgumentError(absl::StrCat(
+                "weights metadata: time_base.dance_period_beats['", name, "'] must be in 0.5..16 beats"));
+          }
+          m->dance_period_beats_[*row] = b;
+        }
+      }
+      if (tb.contains("period_lock")) {
+        const double lock = tb["period_lock"].is_number() ? tb["period_lock"].get<double>() : -1.0;
+        if (!(lock >= 0.0 && lock <= 100.0)) {
+          return absl::InvalidArgumentError("weights metadata: time_base.period_lock must be a number in 0..100");
+        }
+        if (lock > 0.0 && m->dance_period_beats_.empty()) {
+          return absl::InvalidArgumentError("weights metadata: time_base.period_lock needs dance_period_beats");
+        }
+        m->default_period_lock_ = static_cast<float>(lock);
       }
     } else if (kind != "fixed") {
       return absl::InvalidArgumentError(

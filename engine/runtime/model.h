@@ -8,6 +8,7 @@
 #ifndef DANCE_ENGINE_RUNTIME_MODEL_H_
 #define DANCE_ENGINE_RUNTIME_MODEL_H_
 
+#include <array>
 #include <memory>
 #include <string>
 #include <vector>
@@ -54,6 +55,19 @@ class Model {
                                                                              : beats_per_bar_;
   }
   bool bar_clock() const { return beats_per_bar_ > 0; }
+  // The dance period of style row `row` in beats, measured on the training dances (metadata "time_base":
+  // {..., "dance_period_beats": {style: beats, ...}}; the waltzes here move once per 3-beat bar, cha-cha and
+  // rumba every 2 beats); 0 = not known (styles without one, "none", models without the key). Sessions use
+  // it for the period lock (SamplingOptions::period_lock).
+  double StyleDancePeriodBeats(int row) const {
+    return row >= 0 && row < static_cast<int>(dance_period_beats_.size()) ? dance_period_beats_[row] : 0.0;
+  }
+  bool has_dance_periods() const { return !dance_period_beats_.empty(); }
+  // The period lock weight sessions use when SamplingOptions::period_lock is negative (metadata
+  // "time_base": {..., "period_lock": B}, which needs dance_period_beats); 0 = off (models without it).
+  float default_period_lock() const { return default_period_lock_; }
+  // The codebooks with unit-length rows, (K, code_dim): stream 0 upper, 1 lower (cosine similarity of codes).
+  const RowMatrix& unit_codebook(int stream) const { return unit_codebook_[stream]; }
   // The header metadata, for tools that copy it (feature config, training info).
   const nlohmann::json& metadata() const { return metadata_; }
 
@@ -72,6 +86,9 @@ class Model {
   std::vector<double> style_reference_bpm_;  // per style row (n_styles)
   int beats_per_bar_ = 0;                     // bar clock: default beats per bar (0 = none)
   std::vector<int> style_beats_per_bar_;      // per style row (n_styles)
+  std::vector<double> dance_period_beats_;    // per style row (n_styles); empty = none
+  float default_period_lock_ = 0.0f;
+  std::array<RowMatrix, 2> unit_codebook_;    // upper, lower
 };
 
 // Loads and validates `path`.

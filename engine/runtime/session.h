@@ -36,7 +36,9 @@
 #ifndef DANCE_ENGINE_RUNTIME_SESSION_H_
 #define DANCE_ENGINE_RUNTIME_SESSION_H_
 
+#include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <deque>
 #include <memory>
@@ -113,6 +115,8 @@ struct SessionSnapshot {
   PoseState pose;
   WarpState warp;
   double bar_frames = 0.0;
+  double period_steps = 0.0;
+  std::deque<std::pair<int, int>> code_history;
   std::vector<PoseFrame> output;
 };
 
@@ -155,6 +159,12 @@ class Session {
   // model read (its bar phase is the bar clock's if the model has one); for tests. Empty before the first
   // step and for fixed-rate models.
   const std::vector<float>& last_warped_music_token() const { return music_token_; }
+  // The period lock weight in effect (SamplingOptions::period_lock, or the model's default if negative).
+  float period_lock() const {
+    return sampling_.period_lock < 0.0f ? model_->default_period_lock() : sampling_.period_lock;
+  }
+  // The (upper, lower) codes of the last step (the BOS code K before the first).
+  std::pair<int, int> last_codes() const { return {upper_code_, lower_code_}; }
   // Approximate bytes of per-session state (caches, states, buffers).
   int64_t StateBytes() const;
   const Model& model() const { return *model_; }
@@ -169,13 +179,20 @@ class Session {
   bool uses_guidance() const { return sampling_.guidance != 1.0f; }
   // Pointers to this step's music token (4F) and PRE (P), valid until the next PushAudio.
   void StepInputs(const float** music, const float** pre);
-  // After the model ran: sample this step's codes from the lane logits (guidance applied if on).
+  // After the model ran: sample this step's codes from the lane logits (guidance and the period lock
+  // applied if on).
   void SampleCodes(const float* logits_u, const float* logits_l, const float* uncond_u, const float* uncond_l);
   // After the VQ decoders ran: reconstructs and queues this step's frames ((45, 4) and (31, 4) features).
   void EmitFrames(const Eigen::Ref<const Eigen::MatrixXf>& upper, const Eigen::Ref<const Eigen::MatrixXf>& lower);
   // Tempo-normalised models: emits every real frame whose warped poses are decoded.
   void EmitWarpedFrames();
   bool warped() const { return model_->tempo_reference_bpm() > 0.0; }
+  // Adds the period lock's bias toward the code lock_lag() steps ago to `logits` of `stream` (0 upper).
+  void ApplyPeriodLock(int stream, absl::Span<float> logits);
+  // Whether `stream` moved over the last lock_lag() steps (at least half of them distinct codes).
+  bool PeriodMoves(int stream);
+  // One dance period in whole steps (>= 1).
+  size_t lock_lag() const { return static_cast<size_t>(std::max(1.0, std::round(period_steps_))); }
   WarpState NewWarpState() const;
 
   std::shared_ptr<const Model> model_;
@@ -201,10 +218,20 @@ class Session {
   WarpState warp_;
   double style_reference_bpm_ = 0.0;  // the current style's reference tempo (tempo-normalised models)
   double bar_frames_ = 0.0;           // bar clock period in warped frames (0 = no bar clock)
+  double period_steps_ = 0.0;         // the style's dance period in warped steps (0 = unknown: no lock)
+  std::deque<std::pair<int, int>> code_history_;  // (upper, lower) codes of the last steps, oldest first
   SamplerScratch sampler_;
   std::vector<float> guided_u_, guided_l_;  // (K) scratch
+  Eigen::VectorXf lock_sim_;                // (K) scratch of the period lock
+  std::vector<uint8_t> lock_seen_;          // (K) scratch of PeriodMoves
   std::vector<PoseFrame> output_;
 };
+
+// Whether `stream` (0 upper, 1 lower) moved over the last `lag` entries of a code history (oldest first):
+// at least half of them distinct codes. The period lock applies to a stream only then. `seen` is optional
+// scratch (codebook_size entries).
+bool PeriodMoved(const std::deque<std::pair<int, int>>& history, int stream, size_t lag, int codebook_size,
+                 std::vector<uint8_t>* seen = nullptr);
 
 // Advances each session by one step with one pass over the weights for all of them (every Linear is a
 // matrix-matrix product over the batch). Every session must have StepsReady() > 0 (FailedPrecondition

@@ -1,12 +1,14 @@
 // dance-generate: runs the streaming Session over an audio file (no server) and writes the dance.
 //
 //   dance-generate --audio FILE --out DANCE.json [--model M (default models/default.dncw)] [--seed S] [--style NAME[:W][,NAME:W...]]
-//                  [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--chunk-samples N]
+//                  [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--period-lock B] [--chunk-samples N]
 //                  [--bvh DANCE.bvh] [--quiet]
 //
 // The audio is pushed in chunks of N input frames (default 4096; the dance does not depend on N), stepping
 // whenever a step is ready, exactly as a live stream would. Frames past the end of the audio are dropped.
 // Prints one JSON summary line (frames, seconds of audio, wall time, x real time) unless --quiet.
+// --period-lock B: the period lock's weight (0 = off; default: the model's, time_base.period_lock); the
+// dance file records the weight in effect.
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -39,7 +41,8 @@ struct Flags {
 
 constexpr char kUsage[] =
     "usage: dance-generate --audio FILE --out DANCE.json [--model M] [--seed S] [--style NAME[:W],...]\n"
-    "                      [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--chunk-samples N]\n"
+    "                      [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--period-lock B]\n"
+    "                      [--chunk-samples N]\n"
     "                      [--bvh DANCE.bvh] [--quiet]\n";
 
 absl::Status ParseFlags(int argc, char** argv, Flags* f) {
@@ -73,6 +76,8 @@ absl::Status ParseFlags(int argc, char** argv, Flags* f) {
       ok = absl::SimpleAtof(v, &f->sampling.top_p);
     } else if (arg == "--guidance") {
       ok = absl::SimpleAtof(v, &f->sampling.guidance);
+    } else if (arg == "--period-lock") {
+      ok = absl::SimpleAtof(v, &f->sampling.period_lock);
     } else if (arg == "--chunk-samples") {
       ok = absl::SimpleAtoi(v, &f->chunk_samples) && f->chunk_samples >= 1;
     } else {
@@ -156,6 +161,7 @@ absl::Status Run(Flags flags) {
                 {"top_k", flags.sampling.top_k},
                 {"top_p", flags.sampling.top_p},
                 {"guidance", flags.sampling.guidance},
+                {"period_lock", s.period_lock()},
                 {"audio_file", flags.audio},
                 {"audio_duration_s", duration},
                 {"latency_ms", s.LatencyMs()},

@@ -70,6 +70,8 @@ class VqDecoder {
 
   int out_dim() const { return out_dim_; }
   int codebook_size() const { return static_cast<int>(codebook_.rows()); }
+  // The codebook, (K, code_dim).
+  const RowMatrix& codebook() const { return codebook_; }
   int frames_per_code() const { return frames_per_code_; }
 
  private:

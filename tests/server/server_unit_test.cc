@@ -43,6 +43,14 @@ TEST(Convert, ValidHeaderIsAccepted) {
   EXPECT_EQ(v->config.sample_rate_hz, 44100);
   EXPECT_EQ(v->format, PcmFormat::kS16Le);
   EXPECT_EQ(v->config.sampling.top_p, 1.0f);
+  EXPECT_LT(v->config.sampling.period_lock, 0.0f);  // absent: the model's default
+  auto h = GoodHeader();
+  h.mutable_sampling()->set_period_lock(0.0f);  // present and 0: off, not "default"
+  v = ValidateHeader(h, Model(), {});
+  ASSERT_TRUE(v.ok()) << v.status();
+  EXPECT_EQ(v->config.sampling.period_lock, 0.0f);
+  h.mutable_sampling()->set_period_lock(12.0f);
+  EXPECT_EQ(ValidateHeader(h, Model(), {})->config.sampling.period_lock, 12.0f);
 }
 
 TEST(Convert, BadHeadersNameTheField) {
@@ -70,6 +78,11 @@ TEST(Convert, BadHeadersNameTheField) {
   h = GoodHeader();
   h.mutable_sampling()->set_top_p(1.5f);
   check(h, "top_p");
+  h = GoodHeader();
+  h.mutable_sampling()->set_period_lock(-2.0f);
+  check(h, "period_lock");
+  h.mutable_sampling()->set_period_lock(101.0f);
+  check(h, "period_lock");
 }
 
 TEST(Convert, ChunksMustBeWholeFramesWithinTheLimit) {
@@ -90,6 +103,11 @@ TEST(Convert, JsonStartAndControl) {
   ASSERT_EQ(h->style_size(), 1);
   EXPECT_EQ(h->style(0).name(), "popping");
   EXPECT_FLOAT_EQ(h->sampling().temperature(), 0.5f);
+  EXPECT_FALSE(h->sampling().has_period_lock());  // absent: the model's default
+  h = HeaderFromJson(nlohmann::json::parse(R"({"type":"start","sample_rate":48000,"period_lock":0})"));
+  ASSERT_TRUE(h.ok());
+  ASSERT_TRUE(h->sampling().has_period_lock());
+  EXPECT_EQ(h->sampling().period_lock(), 0.0f);
   EXPECT_FALSE(HeaderFromJson(nlohmann::json::parse(R"({"sample_rate":"fast"})")).ok());
   auto c = ControlFromJson(nlohmann::json::parse(R"({"type":"control","style":[{"name":"breaking","weight":2}]})"));
   ASSERT_TRUE(c.ok());

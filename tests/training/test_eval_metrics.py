@@ -227,3 +227,24 @@ def test_bar_seconds_folds_like_the_clock():
     assert abs(bar_seconds(87.0, 86.03, "waltz") - 3 * 60 / 87.0) < 1e-9
     # A cha-cha at 125 BPM: 4 beats.
     assert abs(bar_seconds(125.0, 125.05, "cha-cha") - 4 * 60 / 125.0) < 1e-9
+
+
+def test_dance_period_beats_measures_each_styles_period_on_the_warped_timeline(tmp_path, monkeypatch):
+  # Two waltzes whose speed repeats every 3 beats of the style's reference (R = 90: a beat is 20 warped
+  # frames, 3 beats 2 s), a cha-cha at 2 beats of 120 BPM (1 s), and a motion-only dance (no music): left out.
+  from training import train_data as td
+  refs = {"waltz": 90.0, "cha-cha": 120.0, "salsa": 105.0}
+  dances = {"w1": ("waltz", 2.0 * 2, "a.ogg"), "w2": ("waltz", 2.0 * 2, "b.ogg"),
+            "c1": ("cha-cha", 1.0 * 2, "c.ogg"), "s1": ("salsa", 1.0, "")}
+  for mid, (style, _, audio) in dances.items():
+    np.savez(tmp_path / f"{mid}.npz", style=style, audio_path=audio)
+  monkeypatch.setattr(td, "MOTION_CACHE", tmp_path)
+
+  class Clip:
+    def __init__(self, positions):
+      self.positions = positions
+
+  # _dance's speed has half the swing period: swing at 2 x the intended speed period.
+  monkeypatch.setattr(td, "load_warped_clip", lambda mid, ref: Clip(_dance(seconds=40, period=dances[mid][1],
+                                                                           sway=0.0)))
+  assert td.dance_period_beats(list(dances), refs) == {"cha-cha": 2, "waltz": 3}

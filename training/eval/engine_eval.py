@@ -2,7 +2,7 @@
 songs, against the real dances and the baselines (training.eval.evaluate), plus rendered strips.
 
     .venv/bin/python -m training.eval.engine_eval --model models/default.dncw --out-dir training/runs/X/engine
-        [--seed 0] [--temperature 1]
+        [--seed 0] [--temperature 1] [--period-lock B]
 
 Writes <out-dir>/dances/<id>.json (dance-motion/v1 from dance-generate), metrics.md, metrics.json and
 strip_<id>.png / beats_<id>.png for the first two songs. Needs librosa's beat cache (the project .venv).
@@ -22,10 +22,13 @@ from training.eval.engine_tempo import dance_generate_bin
 REPO = pathlib.Path(__file__).resolve().parents[2]
 
 
-def generate_song(model: str, mid: str, out: pathlib.Path, seed: int, temperature: float) -> pathlib.Path:
+def generate_song(model: str, mid: str, out: pathlib.Path, seed: int, temperature: float,
+                  period_lock: float | None = None) -> pathlib.Path:
   z = np.load(td.MOTION_CACHE / f"{mid}.npz")
   cmd = [str(dance_generate_bin()), "--audio", str(z["audio_path"]), "--out", str(out), "--model", model,
          "--seed", str(seed), "--style", str(z["style"]), "--temperature", str(temperature), "--quiet"]
+  if period_lock is not None:  # None: the model's default
+    cmd += ["--period-lock", str(period_lock)]
   proc = subprocess.run(cmd, capture_output=True, text=True)
   if proc.returncode != 0:
     raise RuntimeError(f"dance-generate failed on {mid}: {proc.stderr.strip()}")
@@ -41,6 +44,8 @@ def main(argv=None) -> None:
   ap.add_argument("--out-dir", required=True)
   ap.add_argument("--seed", type=int, default=0)
   ap.add_argument("--temperature", type=float, default=1.0)
+  ap.add_argument("--period-lock", type=float, default=None,
+                  help="dance-generate --period-lock (default: the model's; 0 = off)")
   args = ap.parse_args(argv)
   out = pathlib.Path(args.out_dir)
   (out / "dances").mkdir(parents=True, exist_ok=True)
@@ -48,7 +53,8 @@ def main(argv=None) -> None:
   dances = []
   for mid in ids:
     z = np.load(td.MOTION_CACHE / f"{mid}.npz")
-    path = generate_song(args.model, mid, out / "dances" / f"{mid}.json", args.seed, args.temperature)
+    path = generate_song(args.model, mid, out / "dances" / f"{mid}.json", args.seed, args.temperature,
+                         args.period_lock)
     d = load_dance(path, audio=str(z["audio_path"]))  # audio_offset_s: the song time of the first frame
     dances.append(Dance(mid, d.positions, d.fps, d.audio_path, d.audio_offset_s, str(z["style"])))
   ev = Evaluator.default()

@@ -14,7 +14,7 @@ true ceiling is higher than this calibration says.
 and the spread of the base period over seeds (std of its log) per song.
 
     /usr/bin/python3 -m training.eval.engine_tempo --model models/default.dncw [--songs validation]
-        [--seeds 0 1] [--seconds 60] [--out report.json]
+        [--seeds 0 1] [--seconds 60] [--temperature T] [--period-lock B] [--out report.json]
 
 Needs `dance-generate` (DANCE_BUILD_DIR, default build/) and sox.
 """
@@ -41,13 +41,16 @@ def dance_generate_bin() -> pathlib.Path:
 
 
 def generate(model: str, audio: str, seed: int, style: str, workdir: pathlib.Path,
-             temperature: float = 1.0, top_p: float = 1.0, guidance: float = 1.0) -> np.ndarray:
+             temperature: float = 1.0, top_p: float = 1.0, guidance: float = 1.0,
+             period_lock: float | None = None) -> np.ndarray:
   """Runs dance-generate on `audio`; returns positions (T, 24, 3) at 30 fps."""
   out = workdir / (pathlib.Path(audio).stem + f"_s{seed}.json")
   if out.is_file():  # already danced in this run (same model and settings: the workdir is per run)
     return np.asarray(json.loads(out.read_text())["positions"], dtype=np.float64)
   cmd = [str(dance_generate_bin()), "--audio", audio, "--out", str(out), "--model", model, "--seed", str(seed),
          "--temperature", str(temperature), "--top-p", str(top_p), "--guidance", str(guidance), "--quiet"]
+  if period_lock is not None:  # None: the model's default
+    cmd += ["--period-lock", str(period_lock)]
   if style:
     cmd += ["--style", style]
   proc = subprocess.run(cmd, capture_output=True, text=True)
@@ -83,6 +86,8 @@ def main(argv=None) -> None:
   ap.add_argument("--temperature", type=float, default=1.0)
   ap.add_argument("--top-p", type=float, default=1.0)
   ap.add_argument("--guidance", type=float, default=1.0, help="style guidance (dance-generate --guidance)")
+  ap.add_argument("--period-lock", type=float, default=None,
+                  help="dance-generate --period-lock (default: the model's; 0 = off)")
   ap.add_argument("--out", default=None)
   args = ap.parse_args(argv)
   if len(args.seeds) < 3:
@@ -97,7 +102,7 @@ def main(argv=None) -> None:
       excerpt = song_excerpt(str(z["audio_path"]), args.seconds, work / f"{mid}.wav")
       for seed in args.seeds:
         gen = lambda path, seed=seed, style=str(z["style"]): generate(  # noqa: E731
-            args.model, path, seed, style, work, args.temperature, args.top_p, args.guidance)
+            args.model, path, seed, style, work, args.temperature, args.top_p, args.guidance, args.period_lock)
         r = tempo_following(gen, excerpt, work)
         r.update(id=mid, seed=seed)
         rows.append(r)
@@ -105,7 +110,7 @@ def main(argv=None) -> None:
               f"{['%.3f' % p for p in r['periods_s']]}", flush=True)
       # The same songs with the seeds pooled: the mean speed autocorrelation of all seeds' dances.
       gen_many = lambda path, style=str(z["style"]): [generate(  # noqa: E731
-          args.model, path, seed, style, work, args.temperature, args.top_p, args.guidance) for seed in args.seeds]
+          args.model, path, seed, style, work, args.temperature, args.top_p, args.guidance, args.period_lock) for seed in args.seeds]
       r = pooled_tempo_following(gen_many, excerpt, work)
       base = gen_many(excerpt)
       if len(base) > 2:
@@ -121,7 +126,7 @@ def main(argv=None) -> None:
   pooled_ratios = [r["ratio"] for r in pooled if np.isfinite(r["ratio"])]
   cal = [c for r in pooled for c in r.get("perfect_follower_ratios", []) if np.isfinite(c)]
   report = {"model": args.model, "seconds": args.seconds, "temperature": args.temperature,
-            "top_p": args.top_p, "guidance": args.guidance, "seeds": args.seeds,
+            "top_p": args.top_p, "guidance": args.guidance, "period_lock": args.period_lock, "seeds": args.seeds,
             "mean_ratio": float(np.mean(ratios)) if ratios else None,
             "mean_ratio_se": bootstrap_se(ratios),
             "median_ratio": float(np.median(ratios)) if ratios else None, "runs": len(rows),

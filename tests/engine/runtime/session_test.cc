@@ -569,6 +569,119 @@ TEST(WarpedSession, BarClockReplacesTheTrackersBarPhase) {
   EXPECT_NEAR(probe->last_warped_music_token()[audio::kBarPhaseCosIndex], std::cos(2.0 * M_PI * x), 1e-6);
 }
 
+TEST(WarpedSession, PeriodLockRepeatsTheCodesOfOneDancePeriodAgo) {
+  // Waltz: 3 beats at R = 90 BPM = 60 warped frames = 15 steps exactly; tango: 2 beats at 120 = 7.5 steps.
+  testing::TinyModelOptions o;
+  o.tempo_reference_bpm = 105.0;
+  o.style_reference_bpm = {{"waltz", 90.0}, {"tango", 120.0}};
+  auto plain_model = LoadTinyModel(o);
+  o.dance_period_beats = {{"waltz", 3.0}, {"tango", 2.0}};
+  auto model = LoadTinyModel(o);
+  EXPECT_DOUBLE_EQ(model->StyleDancePeriodBeats(*model->StyleIndex("waltz")), 3.0);
+  EXPECT_DOUBLE_EQ(model->StyleDancePeriodBeats(*model->StyleIndex("none")), 0.0);
+  EXPECT_FALSE(plain_model->has_dance_periods());
+  const std::vector<float> audio = testing::ClickAudio(12.0, 100.0);
+  // Fraction of steps whose code (each stream) equals the code `lag` steps earlier.
+  auto repeat_fraction = [&](std::shared_ptr<const Model> m, float lock, const std::string& style, int lag) {
+    SamplingOptions sampling = Sampling(1.0f);
+    sampling.period_lock = lock;
+    SessionOptions opt = Opts(5, sampling);
+    opt.style = {{style, 1.0f}};
+    auto s = MakeSession(std::move(m), opt);
+    EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio)).ok());
+    s->EndOfAudio();
+    std::vector<std::pair<int, int>> codes;
+    while (s->StepsReady() > 0) {
+      EXPECT_TRUE(s->Step().ok());
+      codes.push_back(s->last_codes());
+    }
+    int same = 0, n = 0;
+    for (size_t t = 2 * lag; t < codes.size(); ++t, ++n) {
+      same += codes[t].first == codes[t - lag].first;
+      same += codes[t].second == codes[t - lag].second;
+    }
+    return n > 0 ? same / (2.0 * n) : 0.0;
+  };
+  const double free_running = repeat_fraction(model, 0.0f, "waltz", 15);
+  const double locked = repeat_fraction(model, 100.0f, "waltz", 15);
+  EXPECT_LT(free_running, 0.3);
+  EXPECT_GT(locked, 0.95);
+  // Lock 0 is exactly the model without dance periods; a model without them ignores the lock.
+  EXPECT_EQ(repeat_fraction(plain_model, 0.0f, "waltz", 15), free_running);
+  EXPECT_EQ(repeat_fraction(plain_model, 100.0f, "waltz", 15), free_running);
+  // A fractional period (tango, 7.5 steps) locks at the whole number of steps nearest to it (8).
+  EXPECT_GT(repeat_fraction(model, 100.0f, "tango", 8), 0.95);
+  EXPECT_LT(repeat_fraction(model, 0.0f, "tango", 8), 0.3);
+}
+
+TEST(WarpedSession, PeriodLockRepeatsMovementNotStillness) {
+  // The lock applies to a stream only if at least half of the last period's steps brought a new code.
+  std::deque<std::pair<int, int>> history;
+  for (int t = 0; t < 16; ++t) history.emplace_back(t, t % 2 == 0 ? 3 : 4);  // upper moves, lower flips
+  EXPECT_TRUE(PeriodMoved(history, 0, 16, 512));
+  EXPECT_FALSE(PeriodMoved(history, 1, 16, 512));
+  EXPECT_TRUE(PeriodMoved(history, 1, 4, 512));   // 2 distinct of 4: half
+  EXPECT_FALSE(PeriodMoved(history, 1, 5, 512));  // 2 of 5
+  for (int t = 0; t < 8; ++t) history.emplace_back(7, 7);  // then held for 8 steps
+  EXPECT_FALSE(PeriodMoved(history, 0, 8, 512));
+  EXPECT_TRUE(PeriodMoved(history, 0, 16, 512));  // 8 + 1 distinct of 16
+}
+
+TEST(WarpedSession, PeriodLockDefaultSnapshotAndChanges) {
+  testing::TinyModelOptions o;
+  o.tempo_reference_bpm = 105.0;
+  o.style_reference_bpm = {{"waltz", 90.0}};
+  o.dance_period_beats = {{"waltz", 3.0}};
+  auto no_default = LoadTinyModel(o);
+  o.period_lock = 6.0;
+  auto model = LoadTinyModel(o);
+  EXPECT_EQ(no_default->default_period_lock(), 0.0f);
+  EXPECT_EQ(model->default_period_lock(), 6.0f);
+  const std::vector<float> audio = testing::ClickAudio(8.0, 110.0);
+  auto run = [&](std::shared_ptr<const Model> m, float lock) {
+    SamplingOptions sampling = Sampling(1.0f);
+    sampling.period_lock = lock;
+    SessionOptions opt = Opts(9, sampling);
+    opt.style = {{"waltz", 1.0f}};
+    auto s = MakeSession(std::move(m), opt);
+    return std::make_pair(s->period_lock(), RunStream(*s, audio, {3000}));
+  };
+  // Negative = the model's default; an explicit weight overrides it.
+  const auto [lock_default, by_default] = run(model, kModelDefaultPeriodLock);
+  EXPECT_EQ(lock_default, 6.0f);
+  ExpectSameFrames(by_default, run(no_default, 6.0f).second);
+  const std::vector<PoseFrame> off = run(model, 0.0f).second;
+  ExpectSameFrames(off, run(no_default, kModelDefaultPeriodLock).second);
+  ASSERT_EQ(off.size(), by_default.size());
+  int differ = 0;
+  for (size_t i = 0; i < off.size(); ++i) differ += off[i].upper_code != by_default[i].upper_code;
+  EXPECT_GT(differ, static_cast<int>(off.size()) / 3);  // the lock changes the dance
+  // A snapshot carries the code history: restored, a locked session continues exactly.
+  SessionOptions opt = Opts(9, Sampling(1.0f));
+  opt.style = {{"waltz", 1.0f}};
+  auto s = MakeSession(model, opt);
+  const size_t part = audio.size() / 2 + 77;
+  ASSERT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data(), part)).ok());
+  DrainSteps(*s);
+  absl::StatusOr<SessionSnapshot> snap = s->Snapshot();
+  ASSERT_TRUE(snap.ok());
+  ASSERT_GE(snap->code_history.size(), 15u);
+  std::vector<float> rest(audio.begin() + part, audio.end());
+  const std::vector<PoseFrame> first = RunStream(*s, rest, {1000});
+  auto fresh = MakeSession(model, opt);
+  ASSERT_TRUE(fresh->Restore(*snap).ok());
+  ExpectSameFrames(first, RunStream(*fresh, rest, {2500}));
+  // Switched off mid-stream, and bad weights refused.
+  SamplingOptions unlocked = Sampling(1.0f);
+  unlocked.period_lock = 0.0f;
+  ASSERT_TRUE(fresh->SetSampling(unlocked).ok());
+  EXPECT_EQ(fresh->period_lock(), 0.0f);
+  unlocked.period_lock = 101.0f;
+  EXPECT_FALSE(fresh->SetSampling(unlocked).ok());
+  unlocked.period_lock = std::nanf("");
+  EXPECT_FALSE(fresh->SetSampling(unlocked).ok());
+}
+
 TEST(WarpedSession, RefusesABadTimeBase) {
   // Reference tempo outside 30..300 BPM is refused when the model loads.
   testing::TinyModelOptions o;
@@ -598,6 +711,24 @@ TEST(WarpedSession, RefusesABadTimeBase) {
     ASSERT_TRUE(testing::TinyModelWriter(o).WriteFile(path).ok());
     m = LoadModel(path);
     ASSERT_FALSE(m.ok()) << beats << " " << style;
+    EXPECT_TRUE(absl::StrContains(m.status().message(), message)) << m.status();
+  }
+  // Dance periods: outside 0.5..16 beats or an unknown style; a default lock without periods or out of range.
+  o.bar_clock_beats = 0;
+  o.style_beats_per_bar.clear();
+  for (const auto& [style, beats, lock, message] :
+       std::vector<std::tuple<std::string, double, double, std::string>>{
+           {"waltz", 0.25, -1.0, "dance_period_beats['waltz'] must be in 0.5..16"},
+           {"waltz", 17.0, -1.0, "dance_period_beats['waltz'] must be in 0.5..16"},
+           {"salsa", 2.0, -1.0, "dance_period_beats names unknown style 'salsa'"},
+           {"", 0.0, 5.0, "period_lock needs dance_period_beats"},
+           {"waltz", 3.0, 101.0, "period_lock must be a number in 0..100"}}) {
+    o.dance_period_beats.clear();
+    if (!style.empty()) o.dance_period_beats = {{style, beats}};
+    o.period_lock = lock;
+    ASSERT_TRUE(testing::TinyModelWriter(o).WriteFile(path).ok());
+    m = LoadModel(path);
+    ASSERT_FALSE(m.ok()) << style << " " << beats << " " << lock;
     EXPECT_TRUE(absl::StrContains(m.status().message(), message)) << m.status();
   }
 }

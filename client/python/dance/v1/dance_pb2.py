@@ -13,7 +13,7 @@ _sym_db = _symbol_database.Default()
 
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x14\x64\x61nce/v1/dance.proto\x12\x08\x64\x61nce.v1\"\xb4\x01\n\x0ePerformRequest\x12(\n\x06header\x18\x01 \x01(\x0b\x32\x16.dance.v1.StreamHeaderH\x00\x12%\n\x05\x61udio\x18\x02 \x01(\x0b\x32\x14.dance.v1.AudioChunkH\x00\x12$\n\x07\x63ontrol\x18\x03 \x01(\x0b\x32\x11.dance.v1.ControlH\x00\x12#\n\x03\x65nd\x18\x04 \x01(\x0b\x32\x14.dance.v1.EndOfAudioH\x00\x42\x06\n\x04kind\"+\n\x0bStyleWeight\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x0e\n\x06weight\x18\x02 \x01(\x02\"O\n\x08Sampling\x12\x13\n\x0btemperature\x18\x01 \x01(\x02\x12\r\n\x05top_k\x18\x02 \x01(\x05\x12\r\n\x05top_p\x18\x03 \x01(\x02\x12\x10\n\x08guidance\x18\x04 \x01(\x02\"\x86\x02\n\x0cStreamHeader\x12\x16\n\x0esample_rate_hz\x18\x01 \x01(\x05\x12\x10\n\x08\x63hannels\x18\x02 \x01(\x05\x12-\n\rsample_format\x18\x03 \x01(\x0e\x32\x16.dance.v1.SampleFormat\x12$\n\x05style\x18\x04 \x03(\x0b\x32\x15.dance.v1.StyleWeight\x12\x0c\n\x04seed\x18\x05 \x01(\x04\x12$\n\x08sampling\x18\x06 \x01(\x0b\x32\x12.dance.v1.Sampling\x12\x16\n\x0e\x63lient_time_us\x18\x07 \x01(\x03\x12\x13\n\x0b\x63lient_name\x18\x08 \x01(\t\x12\x16\n\x0eomit_rotations\x18\t \x01(\x08\"0\n\nAudioChunk\x12\x15\n\rsample_offset\x18\x01 \x01(\x03\x12\x0b\n\x03pcm\x18\x02 \x01(\x0c\"U\n\x07\x43ontrol\x12$\n\x05style\x18\x01 \x03(\x0b\x32\x15.dance.v1.StyleWeight\x12$\n\x08sampling\x18\x02 \x01(\x0b\x32\x12.dance.v1.Sampling\"\x0c\n\nEndOfAudio\"\xa8\x01\n\x0b\x44\x61nceUpdate\x12%\n\x04info\x18\x01 \x01(\x0b\x32\x15.dance.v1.SessionInfoH\x00\x12$\n\x05\x66rame\x18\x02 \x01(\x0b\x32\x13.dance.v1.PoseFrameH\x00\x12 \n\x05\x65vent\x18\x03 \x01(\x0b\x32\x0f.dance.v1.EventH\x00\x12\"\n\x03\x65nd\x18\x04 \x01(\x0b\x32\x13.dance.v1.StreamEndH\x00\x42\x06\n\x04kind\"F\n\x08Skeleton\x12\x13\n\x0bjoint_names\x18\x01 \x03(\t\x12\x0f\n\x07parents\x18\x02 \x03(\x05\x12\x14\n\x0crest_offsets\x18\x03 \x03(\x02\"\xbd\x01\n\x0bSessionInfo\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x10\n\x08model_id\x18\x02 \x01(\t\x12\x12\n\nlatency_ms\x18\x03 \x01(\x01\x12\x0b\n\x03\x66ps\x18\x04 \x01(\x01\x12$\n\x08skeleton\x18\x05 \x01(\x0b\x32\x12.dance.v1.Skeleton\x12\x0e\n\x06styles\x18\x06 \x03(\t\x12\x18\n\x10samples_per_step\x18\x07 \x01(\x05\x12\x17\n\x0f\x66rames_per_step\x18\x08 \x01(\x05\"\xc5\x01\n\tPoseFrame\x12\r\n\x05index\x18\x01 \x01(\x03\x12\x0f\n\x07time_ms\x18\x02 \x01(\x01\x12\x11\n\tpositions\x18\x03 \x03(\x02\x12\x11\n\trotations\x18\x04 \x03(\x02\x12\x12\n\nupper_code\x18\x05 \x01(\x05\x12\x12\n\nlower_code\x18\x06 \x01(\x05\x12\x1a\n\x12trigger_sample_end\x18\x07 \x01(\x03\x12\x16\n\x0eserver_time_us\x18\x08 \x01(\x03\x12\x16\n\x0e\x64ropped_before\x18\t \x01(\x03\"\xbb\x01\n\x05\x45vent\x12\"\n\x04kind\x18\x01 \x01(\x0e\x32\x14.dance.v1.Event.Kind\x12\x0f\n\x07time_ms\x18\x02 \x01(\x01\x12\x13\n\x0b\x66rame_index\x18\x03 \x01(\x03\x12\x0f\n\x07message\x18\x04 \x01(\t\"W\n\x04Kind\x12\x14\n\x10KIND_UNSPECIFIED\x10\x00\x12\r\n\tKIND_BEAT\x10\x01\x12\x18\n\x14KIND_CONTROL_APPLIED\x10\x02\x12\x10\n\x0cKIND_WARNING\x10\x03\"=\n\tStreamEnd\x12\x0e\n\x06\x66rames\x18\x01 \x01(\x03\x12\x10\n\x08\x61udio_ms\x18\x02 \x01(\x01\x12\x0e\n\x06reason\x18\x03 \x01(\t\":\n\x0cWatchRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x16\n\x0eomit_rotations\x18\x02 \x01(\x08\"\x15\n\x13ListSessionsRequest\"\xab\x01\n\x0eSessionSummary\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x13\n\x0b\x63lient_name\x18\x02 \x01(\t\x12\x17\n\x0fstarted_unix_ms\x18\x03 \x01(\x03\x12\x0e\n\x06\x66rames\x18\x04 \x01(\x03\x12\x10\n\x08\x61udio_ms\x18\x05 \x01(\x01\x12\x0f\n\x07viewers\x18\x06 \x01(\x05\x12$\n\x05style\x18\x07 \x03(\x0b\x32\x15.dance.v1.StyleWeight\"B\n\x14ListSessionsResponse\x12*\n\x08sessions\x18\x01 \x03(\x0b\x32\x18.dance.v1.SessionSummary\"\x15\n\x13GetModelInfoRequest\"\xbe\x01\n\tModelInfo\x12\x10\n\x08model_id\x18\x01 \x01(\t\x12\x12\n\nlatency_ms\x18\x02 \x01(\x01\x12\x0b\n\x03\x66ps\x18\x03 \x01(\x01\x12$\n\x08skeleton\x18\x04 \x01(\x0b\x32\x12.dance.v1.Skeleton\x12\x0e\n\x06styles\x18\x05 \x03(\t\x12\x14\n\x0cmax_sessions\x18\x06 \x01(\x05\x12\x17\n\x0f\x61\x63tive_sessions\x18\x07 \x01(\x05\x12\x19\n\x11max_chunk_samples\x18\x08 \x01(\x05*_\n\x0cSampleFormat\x12\x1d\n\x19SAMPLE_FORMAT_UNSPECIFIED\x10\x00\x12\x17\n\x13SAMPLE_FORMAT_F32LE\x10\x01\x12\x17\n\x13SAMPLE_FORMAT_S16LE\x10\x02\x32\x9b\x02\n\x0c\x44\x61nceService\x12>\n\x07Perform\x12\x18.dance.v1.PerformRequest\x1a\x15.dance.v1.DanceUpdate(\x01\x30\x01\x12\x38\n\x05Watch\x12\x16.dance.v1.WatchRequest\x1a\x15.dance.v1.DanceUpdate0\x01\x12M\n\x0cListSessions\x12\x1d.dance.v1.ListSessionsRequest\x1a\x1e.dance.v1.ListSessionsResponse\x12\x42\n\x0cGetModelInfo\x12\x1d.dance.v1.GetModelInfoRequest\x1a\x13.dance.v1.ModelInfoB\x03\xf8\x01\x01\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x14\x64\x61nce/v1/dance.proto\x12\x08\x64\x61nce.v1\"\xb4\x01\n\x0ePerformRequest\x12(\n\x06header\x18\x01 \x01(\x0b\x32\x16.dance.v1.StreamHeaderH\x00\x12%\n\x05\x61udio\x18\x02 \x01(\x0b\x32\x14.dance.v1.AudioChunkH\x00\x12$\n\x07\x63ontrol\x18\x03 \x01(\x0b\x32\x11.dance.v1.ControlH\x00\x12#\n\x03\x65nd\x18\x04 \x01(\x0b\x32\x14.dance.v1.EndOfAudioH\x00\x42\x06\n\x04kind\"+\n\x0bStyleWeight\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x0e\n\x06weight\x18\x02 \x01(\x02\"y\n\x08Sampling\x12\x13\n\x0btemperature\x18\x01 \x01(\x02\x12\r\n\x05top_k\x18\x02 \x01(\x05\x12\r\n\x05top_p\x18\x03 \x01(\x02\x12\x10\n\x08guidance\x18\x04 \x01(\x02\x12\x18\n\x0bperiod_lock\x18\x05 \x01(\x02H\x00\x88\x01\x01\x42\x0e\n\x0c_period_lock\"\x86\x02\n\x0cStreamHeader\x12\x16\n\x0esample_rate_hz\x18\x01 \x01(\x05\x12\x10\n\x08\x63hannels\x18\x02 \x01(\x05\x12-\n\rsample_format\x18\x03 \x01(\x0e\x32\x16.dance.v1.SampleFormat\x12$\n\x05style\x18\x04 \x03(\x0b\x32\x15.dance.v1.StyleWeight\x12\x0c\n\x04seed\x18\x05 \x01(\x04\x12$\n\x08sampling\x18\x06 \x01(\x0b\x32\x12.dance.v1.Sampling\x12\x16\n\x0e\x63lient_time_us\x18\x07 \x01(\x03\x12\x13\n\x0b\x63lient_name\x18\x08 \x01(\t\x12\x16\n\x0eomit_rotations\x18\t \x01(\x08\"0\n\nAudioChunk\x12\x15\n\rsample_offset\x18\x01 \x01(\x03\x12\x0b\n\x03pcm\x18\x02 \x01(\x0c\"U\n\x07\x43ontrol\x12$\n\x05style\x18\x01 \x03(\x0b\x32\x15.dance.v1.StyleWeight\x12$\n\x08sampling\x18\x02 \x01(\x0b\x32\x12.dance.v1.Sampling\"\x0c\n\nEndOfAudio\"\xa8\x01\n\x0b\x44\x61nceUpdate\x12%\n\x04info\x18\x01 \x01(\x0b\x32\x15.dance.v1.SessionInfoH\x00\x12$\n\x05\x66rame\x18\x02 \x01(\x0b\x32\x13.dance.v1.PoseFrameH\x00\x12 \n\x05\x65vent\x18\x03 \x01(\x0b\x32\x0f.dance.v1.EventH\x00\x12\"\n\x03\x65nd\x18\x04 \x01(\x0b\x32\x13.dance.v1.StreamEndH\x00\x42\x06\n\x04kind\"F\n\x08Skeleton\x12\x13\n\x0bjoint_names\x18\x01 \x03(\t\x12\x0f\n\x07parents\x18\x02 \x03(\x05\x12\x14\n\x0crest_offsets\x18\x03 \x03(\x02\"\xbd\x01\n\x0bSessionInfo\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x10\n\x08model_id\x18\x02 \x01(\t\x12\x12\n\nlatency_ms\x18\x03 \x01(\x01\x12\x0b\n\x03\x66ps\x18\x04 \x01(\x01\x12$\n\x08skeleton\x18\x05 \x01(\x0b\x32\x12.dance.v1.Skeleton\x12\x0e\n\x06styles\x18\x06 \x03(\t\x12\x18\n\x10samples_per_step\x18\x07 \x01(\x05\x12\x17\n\x0f\x66rames_per_step\x18\x08 \x01(\x05\"\xc5\x01\n\tPoseFrame\x12\r\n\x05index\x18\x01 \x01(\x03\x12\x0f\n\x07time_ms\x18\x02 \x01(\x01\x12\x11\n\tpositions\x18\x03 \x03(\x02\x12\x11\n\trotations\x18\x04 \x03(\x02\x12\x12\n\nupper_code\x18\x05 \x01(\x05\x12\x12\n\nlower_code\x18\x06 \x01(\x05\x12\x1a\n\x12trigger_sample_end\x18\x07 \x01(\x03\x12\x16\n\x0eserver_time_us\x18\x08 \x01(\x03\x12\x16\n\x0e\x64ropped_before\x18\t \x01(\x03\"\xbb\x01\n\x05\x45vent\x12\"\n\x04kind\x18\x01 \x01(\x0e\x32\x14.dance.v1.Event.Kind\x12\x0f\n\x07time_ms\x18\x02 \x01(\x01\x12\x13\n\x0b\x66rame_index\x18\x03 \x01(\x03\x12\x0f\n\x07message\x18\x04 \x01(\t\"W\n\x04Kind\x12\x14\n\x10KIND_UNSPECIFIED\x10\x00\x12\r\n\tKIND_BEAT\x10\x01\x12\x18\n\x14KIND_CONTROL_APPLIED\x10\x02\x12\x10\n\x0cKIND_WARNING\x10\x03\"=\n\tStreamEnd\x12\x0e\n\x06\x66rames\x18\x01 \x01(\x03\x12\x10\n\x08\x61udio_ms\x18\x02 \x01(\x01\x12\x0e\n\x06reason\x18\x03 \x01(\t\":\n\x0cWatchRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x16\n\x0eomit_rotations\x18\x02 \x01(\x08\"\x15\n\x13ListSessionsRequest\"\xab\x01\n\x0eSessionSummary\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x13\n\x0b\x63lient_name\x18\x02 \x01(\t\x12\x17\n\x0fstarted_unix_ms\x18\x03 \x01(\x03\x12\x0e\n\x06\x66rames\x18\x04 \x01(\x03\x12\x10\n\x08\x61udio_ms\x18\x05 \x01(\x01\x12\x0f\n\x07viewers\x18\x06 \x01(\x05\x12$\n\x05style\x18\x07 \x03(\x0b\x32\x15.dance.v1.StyleWeight\"B\n\x14ListSessionsResponse\x12*\n\x08sessions\x18\x01 \x03(\x0b\x32\x18.dance.v1.SessionSummary\"\x15\n\x13GetModelInfoRequest\"\xdb\x01\n\tModelInfo\x12\x10\n\x08model_id\x18\x01 \x01(\t\x12\x12\n\nlatency_ms\x18\x02 \x01(\x01\x12\x0b\n\x03\x66ps\x18\x03 \x01(\x01\x12$\n\x08skeleton\x18\x04 \x01(\x0b\x32\x12.dance.v1.Skeleton\x12\x0e\n\x06styles\x18\x05 \x03(\t\x12\x14\n\x0cmax_sessions\x18\x06 \x01(\x05\x12\x17\n\x0f\x61\x63tive_sessions\x18\x07 \x01(\x05\x12\x19\n\x11max_chunk_samples\x18\x08 \x01(\x05\x12\x1b\n\x13\x64\x65\x66\x61ult_period_lock\x18\t \x01(\x02*_\n\x0cSampleFormat\x12\x1d\n\x19SAMPLE_FORMAT_UNSPECIFIED\x10\x00\x12\x17\n\x13SAMPLE_FORMAT_F32LE\x10\x01\x12\x17\n\x13SAMPLE_FORMAT_S16LE\x10\x02\x32\x9b\x02\n\x0c\x44\x61nceService\x12>\n\x07Perform\x12\x18.dance.v1.PerformRequest\x1a\x15.dance.v1.DanceUpdate(\x01\x30\x01\x12\x38\n\x05Watch\x12\x16.dance.v1.WatchRequest\x1a\x15.dance.v1.DanceUpdate0\x01\x12M\n\x0cListSessions\x12\x1d.dance.v1.ListSessionsRequest\x1a\x1e.dance.v1.ListSessionsResponse\x12\x42\n\x0cGetModelInfo\x12\x1d.dance.v1.GetModelInfoRequest\x1a\x13.dance.v1.ModelInfoB\x03\xf8\x01\x01\x62\x06proto3')
 
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, globals())
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'dance.v1.dance_pb2', globals())
@@ -21,48 +21,48 @@ if _descriptor._USE_C_DESCRIPTORS == False:
 
   DESCRIPTOR._options = None
   DESCRIPTOR._serialized_options = b'\370\001\001'
-  _SAMPLEFORMAT._serialized_start=2188
-  _SAMPLEFORMAT._serialized_end=2283
+  _SAMPLEFORMAT._serialized_start=2259
+  _SAMPLEFORMAT._serialized_end=2354
   _PERFORMREQUEST._serialized_start=35
   _PERFORMREQUEST._serialized_end=215
   _STYLEWEIGHT._serialized_start=217
   _STYLEWEIGHT._serialized_end=260
   _SAMPLING._serialized_start=262
-  _SAMPLING._serialized_end=341
-  _STREAMHEADER._serialized_start=344
-  _STREAMHEADER._serialized_end=606
-  _AUDIOCHUNK._serialized_start=608
-  _AUDIOCHUNK._serialized_end=656
-  _CONTROL._serialized_start=658
-  _CONTROL._serialized_end=743
-  _ENDOFAUDIO._serialized_start=745
-  _ENDOFAUDIO._serialized_end=757
-  _DANCEUPDATE._serialized_start=760
-  _DANCEUPDATE._serialized_end=928
-  _SKELETON._serialized_start=930
-  _SKELETON._serialized_end=1000
-  _SESSIONINFO._serialized_start=1003
-  _SESSIONINFO._serialized_end=1192
-  _POSEFRAME._serialized_start=1195
-  _POSEFRAME._serialized_end=1392
-  _EVENT._serialized_start=1395
-  _EVENT._serialized_end=1582
-  _EVENT_KIND._serialized_start=1495
-  _EVENT_KIND._serialized_end=1582
-  _STREAMEND._serialized_start=1584
-  _STREAMEND._serialized_end=1645
-  _WATCHREQUEST._serialized_start=1647
-  _WATCHREQUEST._serialized_end=1705
-  _LISTSESSIONSREQUEST._serialized_start=1707
-  _LISTSESSIONSREQUEST._serialized_end=1728
-  _SESSIONSUMMARY._serialized_start=1731
-  _SESSIONSUMMARY._serialized_end=1902
-  _LISTSESSIONSRESPONSE._serialized_start=1904
-  _LISTSESSIONSRESPONSE._serialized_end=1970
-  _GETMODELINFOREQUEST._serialized_start=1972
-  _GETMODELINFOREQUEST._serialized_end=1993
-  _MODELINFO._serialized_start=1996
-  _MODELINFO._serialized_end=2186
-  _DANCESERVICE._serialized_start=2286
-  _DANCESERVICE._serialized_end=2569
+  _SAMPLING._serialized_end=383
+  _STREAMHEADER._serialized_start=386
+  _STREAMHEADER._serialized_end=648
+  _AUDIOCHUNK._serialized_start=650
+  _AUDIOCHUNK._serialized_end=698
+  _CONTROL._serialized_start=700
+  _CONTROL._serialized_end=785
+  _ENDOFAUDIO._serialized_start=787
+  _ENDOFAUDIO._serialized_end=799
+  _DANCEUPDATE._serialized_start=802
+  _DANCEUPDATE._serialized_end=970
+  _SKELETON._serialized_start=972
+  _SKELETON._serialized_end=1042
+  _SESSIONINFO._serialized_start=1045
+  _SESSIONINFO._serialized_end=1234
+  _POSEFRAME._serialized_start=1237
+  _POSEFRAME._serialized_end=1434
+  _EVENT._serialized_start=1437
+  _EVENT._serialized_end=1624
+  _EVENT_KIND._serialized_start=1537
+  _EVENT_KIND._serialized_end=1624
+  _STREAMEND._serialized_start=1626
+  _STREAMEND._serialized_end=1687
+  _WATCHREQUEST._serialized_start=1689
+  _WATCHREQUEST._serialized_end=1747
+  _LISTSESSIONSREQUEST._serialized_start=1749
+  _LISTSESSIONSREQUEST._serialized_end=1770
+  _SESSIONSUMMARY._serialized_start=1773
+  _SESSIONSUMMARY._serialized_end=1944
+  _LISTSESSIONSRESPONSE._serialized_start=1946
+  _LISTSESSIONSRESPONSE._serialized_end=2012
+  _GETMODELINFOREQUEST._serialized_start=2014
+  _GETMODELINFOREQUEST._serialized_end=2035
+  _MODELINFO._serialized_start=2038
+  _MODELINFO._serialized_end=2257
+  _DANCESERVICE._serialized_start=2357
+  _DANCESERVICE._serialized_end=2640
 # @@protoc_insertion_point(module_scope)

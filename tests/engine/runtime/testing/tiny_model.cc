@@ -121,6 +121,8 @@ WeightsWriter TinyModelWriter(const TinyModelOptions& o) {
         meta["time_base"]["bar_clock"]["style_beats_per_bar"][name] = beats;
       }
     }
+    for (const auto& [name, beats] : o.dance_period_beats) meta["time_base"]["dance_period_beats"][name] = beats;
+    if (o.period_lock >= 0.0) meta["time_base"]["period_lock"] = o.period_lock;
   }
   WeightsWriter w(meta);
   Builder b(&w, o.seed, o.scale);

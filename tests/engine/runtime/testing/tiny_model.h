@@ -37,6 +37,8 @@ struct TinyModelOptions {
   std::vector<std::pair<std::string, double>> style_reference_bpm;  // time_base.style_reference_bpm
   int bar_clock_beats = 0;  // > 0: time_base.bar_clock.beats_per_bar (with tempo_reference_bpm)
   std::vector<std::pair<std::string, int>> style_beats_per_bar;     // time_base.bar_clock.style_beats_per_bar
+  std::vector<std::pair<std::string, double>> dance_period_beats;   // time_base.dance_period_beats
+  double period_lock = -1.0;  // >= 0: time_base.period_lock (the sessions' default lock weight)
 };
 
 WeightsWriter TinyModelWriter(const TinyModelOptions& options);
