@@ -53,7 +53,10 @@ class EngineSessionStream final : public EngineStream {
   }
   absl::Status SetStyle(const StyleMix& style) override { return session_->SetStyle(style); }
   absl::Status SetSampling(const SamplingConfig& sampling) override {
-    return session_->SetSampling(ToEngine(sampling));
+    engine::SamplingOptions o = ToEngine(sampling);
+    // A Control whose sampling has no period_lock keeps the lock in effect ("unset fields keep their value").
+    if (o.period_lock < 0.0f) o.period_lock = session_->period_lock();
+    return session_->SetSampling(o);
   }
 
   engine::Session* session() { return session_.get(); }

@@ -137,6 +137,8 @@ def main(argv=None) -> int:
   ap.add_argument("--eval-songs", type=int, default=8)
   ap.add_argument("--model-id", default=None, help="export: the model id (default: <out stem>-<date>)")
   args = ap.parse_args(argv)
+  if not 0.0 <= args.period_lock <= 100.0:
+    ap.error(f"--period-lock must be in [0, 100], got {args.period_lock}")
   torch.set_num_threads(args.threads)
   os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
   run = pathlib.Path(args.run)

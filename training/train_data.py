@@ -172,8 +172,8 @@ def dance_period_beats(ids: list[str], refs: dict[str, float]) -> dict[str, int]
   """Each style's dance period in beats, measured on the paired dances in `ids` on the tempo-normalised
   timeline: the dominant period of the warped motion (training.eval.tempo.dominant_period) over the
   style's beat at its reference tempo (1800 / R warped frames), the median over the style's songs, rounded
-  to whole beats. Styles without paired dances are left out (no period: the engine's period lock is off
-  for them). The export writes it into the model's time_base (`dance_period_beats`)."""
+  to whole beats (1..16, the engine's range). Styles without paired dances are left out (no period: the
+  engine's period lock is off for them). The export writes it into the model's time_base (`dance_period_beats`)."""
   from training.eval.tempo import dominant_period
   by_style: dict[str, list[float]] = {}
   for mid in ids:
@@ -184,7 +184,7 @@ def dance_period_beats(ids: list[str], refs: dict[str, float]) -> dict[str, int]
     period_frames = dominant_period(load_warped_clip(mid, refs[style]).positions) * 30.0
     if np.isfinite(period_frames):
       by_style.setdefault(style, []).append(period_frames / (1800.0 / refs[style]))
-  return {style: max(1, int(round(float(np.median(b))))) for style, b in sorted(by_style.items())}
+  return {style: min(16, max(1, int(round(float(np.median(b)))))) for style, b in sorted(by_style.items())}
 
 
 def paired_ids(ids: list[str]) -> list[str]:

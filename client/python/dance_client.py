@@ -44,6 +44,8 @@ def requests(pcm, rate, channels, args):
                                     sample_format=dance_pb2.SAMPLE_FORMAT_S16LE, seed=args.seed,
                                     client_name="python-example", client_time_us=int(time.time() * 1e6))
     header.sampling.temperature = args.temperature
+    if args.period_lock is not None:  # absent: the model's default
+        header.sampling.period_lock = args.period_lock
     if args.style:
         header.style.add(name=args.style, weight=1.0)
     yield dance_pb2.PerformRequest(header=header)
@@ -70,6 +72,7 @@ def main():
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--temperature", type=float, default=1.0)
     p.add_argument("--style", default="")
+    p.add_argument("--period-lock", type=float, default=None, help="0 = off (default: the model's)")
     p.add_argument("--chunk-ms", type=int, default=40)
     p.add_argument("--realtime", action="store_true")
     p.add_argument("--token", default="", help="bearer token if the server requires one")

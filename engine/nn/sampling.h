@@ -35,7 +35,7 @@ struct SamplingOptions {
   int top_k = 0;             // >= 0; 0 = no top-k cut
   float top_p = 1.0f;        // (0, 1]; 1 = no nucleus cut
   float guidance = 1.0f;     // classifier-free guidance weight w (>= 0); 1 = conditional logits only
-  // Period lock (sessions of a tempo-normalised model with dance periods; docs/model.md section 7): weight
+  // Period lock (sessions of a tempo-normalised model with dance periods; docs/model.md section 6): weight
   // (<= 100) of the logit bias toward the codes of one dance period ago; 0 = off, negative = the model's
   // default (Model::default_period_lock). SampleCode ignores it.
   float period_lock = kModelDefaultPeriodLock;

@@ -118,7 +118,7 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
         if (!per.is_object()) {
           return absl::InvalidArgumentError("weights metadata: time_base.dance_period_beats must be an object");
         }
-        m->dance_period_beats_.assign(m->styles_.size(), 0.0);
+        if (!per.empty()) m->dance_period_beats_.assign(m->styles_.size(), 0.0);
         for (const auto& [name, value] : per.items()) {
           absl::StatusOr<int> row = m->StyleIndex(name);
           if (!row.ok() || *row >= static_cast<int>(m->styles_.size())) {

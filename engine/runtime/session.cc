@@ -268,7 +268,7 @@ bool PeriodMoved(const std::deque<std::pair<int, int>>& history, int stream, siz
     distinct += (*seen)[code] == 0;
     (*seen)[code] = 1;
   }
-  return 2 * distinct >= lag;
+  return distinct >= 2 && 2 * distinct >= lag;
 }
 
 bool Session::PeriodMoves(int stream) {
@@ -418,6 +418,12 @@ absl::Status Session::Restore(const SessionSnapshot& s) {
       s.lower_decoder.history.size() != lower_state_.history.size()) {
     return absl::InvalidArgumentError("session restore: snapshot is from a different model");
   }
+  const int k = model_->config().codebook_size;
+  for (const auto& [up, low] : s.code_history) {
+    if (up < 0 || up >= k || low < 0 || low >= k || s.code_history.size() > kMaxCodeHistory) {
+      return absl::InvalidArgumentError("session restore: snapshot has codes outside this model's codebook");
+    }
+  }
   DANCE_RETURN_IF_ERROR(ValidateSamplingOptions(s.sampling));
   DANCE_RETURN_IF_ERROR(front_end_->Restore(s.front_end));
   style_ = s.style;
@@ -474,7 +480,8 @@ int64_t Session::StateBytes() const {
   if (uses_guidance()) n += uncond_.Bytes();
   n += static_cast<int64_t>(sizeof(audio::AudioFrontEnd) + sizeof(audio::FeatureExtractorState));
   n += static_cast<int64_t>((pending_features_.capacity() + pending_pre_.capacity()) * sizeof(float));
-  n += static_cast<int64_t>(code_history_.size() * sizeof(code_history_[0]));
+  n += static_cast<int64_t>(code_history_.size() * sizeof(code_history_[0]) + lock_sim_.size() * sizeof(float) +
+                            lock_seen_.capacity());
   n += static_cast<int64_t>(warp_.source.size() * sizeof(int64_t) + warp_.starts.size() * sizeof(double) +
                             warp_.poses.size() * (sizeof(warp_.poses[0]) + sizeof(warp_.pose_codes[0])));
   return n;

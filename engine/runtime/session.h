@@ -228,7 +228,7 @@ class Session {
 };
 
 // Whether `stream` (0 upper, 1 lower) moved over the last `lag` entries of a code history (oldest first):
-// at least half of them distinct codes. The period lock applies to a stream only then. `seen` is optional
+// at least half of them, and at least 2, distinct codes. The period lock applies to a stream only then. `seen` is optional
 // scratch (codebook_size entries).
 bool PeriodMoved(const std::deque<std::pair<int, int>>& history, int stream, size_t lag, int codebook_size,
                  std::vector<uint8_t>* seen = nullptr);

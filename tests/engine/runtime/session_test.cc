@@ -435,19 +435,33 @@ TEST(WarpedSession, SnapshotRestoreContinuesExactly) {
 }
 
 TEST(WarpedSession, StepBatchMatchesSteppingAlone) {
-  auto model = WarpedTinyModel();
+  // Waltz sessions of a model with a dance period and a default lock: locked, locked with guidance, unlocked.
+  testing::TinyModelOptions o;
+  o.tempo_reference_bpm = 105.0;
+  o.style_reference_bpm = {{"waltz", 90.0}};
+  o.dance_period_beats = {{"waltz", 1.0}};  // 5 steps: the lock engages within the 4 s
+  o.period_lock = 4.0;
+  auto model = LoadTinyModel(o);
   const std::vector<float> audio = testing::ClickAudio(4.0, 100.0);
+  auto options = [](int i) {
+    SessionOptions opt = Opts(10 + i, Sampling(1.0f, 0, i == 1 ? 2.0f : 1.0f));
+    if (i == 2) opt.sampling.period_lock = 0.0f;
+    opt.style = {{"waltz", 1.0f}};
+    return opt;
+  };
   std::vector<std::vector<PoseFrame>> alone;
   for (int i = 0; i < 3; ++i) {
-    auto s = MakeSession(model, Opts(10 + i, Sampling(1.0f)));
+    auto s = MakeSession(model, options(i));
     alone.push_back(RunStream(*s, audio, {2400}));
   }
   std::vector<std::unique_ptr<Session>> sessions;
   std::vector<Session*> ptrs;
   for (int i = 0; i < 3; ++i) {
-    sessions.push_back(MakeSession(model, Opts(10 + i, Sampling(1.0f))));
+    sessions.push_back(MakeSession(model, options(i)));
     ptrs.push_back(sessions.back().get());
   }
+  EXPECT_EQ(ptrs[0]->period_lock(), 4.0f);
+  EXPECT_EQ(ptrs[2]->period_lock(), 0.0f);
   for (size_t pos = 0; pos < audio.size(); pos += 2400) {
     const size_t n = std::min<size_t>(2400, audio.size() - pos);
     for (Session* s : ptrs) ASSERT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data() + pos, n)).ok());
@@ -625,6 +639,8 @@ TEST(WarpedSession, PeriodLockRepeatsMovementNotStillness) {
   for (int t = 0; t < 8; ++t) history.emplace_back(7, 7);  // then held for 8 steps
   EXPECT_FALSE(PeriodMoved(history, 0, 8, 512));
   EXPECT_TRUE(PeriodMoved(history, 0, 16, 512));  // 8 + 1 distinct of 16
+  EXPECT_FALSE(PeriodMoved(history, 0, 2, 512));  // a short period of one held code is still
+  EXPECT_FALSE(PeriodMoved(history, 0, 1, 512));
 }
 
 TEST(WarpedSession, PeriodLockDefaultSnapshotAndChanges) {
