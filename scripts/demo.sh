@@ -45,7 +45,7 @@ fi
 if [ -z "${DANCE_BIN_DIR:-}" ] && [ -f web/package.json ]; then
   step "2b/5 Web page (npm ci && npm run build in web/)"
   if command -v npm >/dev/null; then
-    (cd web && npm ci --no-audit --no-fund && npm run build)
+    scripts/web-install.sh && (cd web && npm run build)
   else
     echo "npm not found: the server will show a fallback page at /" >&2
   fi

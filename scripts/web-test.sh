@@ -16,15 +16,7 @@ done
 [ -x "${CHROMIUM:-/usr/bin/chromium}" ] || { echo "web-test.sh: no ${CHROMIUM:-/usr/bin/chromium}" >&2; exit 1; }
 
 if [ "${DANCE_WEB_SKIP_INSTALL:-0}" != 1 ] || [ ! -d web/node_modules ]; then
-  # npm ci installs exactly the lock file. A registry mirror that lacks other platforms' optional packages
-  # (rollup's android/darwin/win32 binaries) makes npm ci refuse a lock written against it; then install
-  # from the same lock without rewriting it.
-  if ! (cd web && npm ci --no-audit --no-fund --loglevel=error 2>/tmp/web-npm-ci.$$.log); then
-    grep -q 'in sync' /tmp/web-npm-ci.$$.log || { cat /tmp/web-npm-ci.$$.log >&2; exit 1; }
-    echo "web-test.sh: npm ci refused the lock (registry without other platforms' packages); npm install --no-save"
-    (cd web && npm install --no-save --no-audit --no-fund --loglevel=error)
-  fi
-  rm -f /tmp/web-npm-ci.$$.log
+  scripts/web-install.sh
 fi
 (cd web && npm run --silent build -- --logLevel warn)
 node --test --test-reporter=spec tests/web/*.test.mjs
