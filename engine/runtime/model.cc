@@ -10,6 +10,34 @@
 #include "engine/nn/status_macros.h"
 
 namespace dance::engine {
+namespace {
+
+// Reads `per` (metadata time_base.<key>, an object style name -> number) into `out` by style row: every name
+// must be one of `m`'s styles and every value a number in [lo, hi] (an integer if `integer`); `range` names
+// the bounds in the error message.
+absl::Status ReadPerStyle(const Model& m, const nlohmann::json& per, const std::string& key, double lo, double hi,
+                          bool integer, const std::string& range, std::vector<double>* out) {
+  if (!per.is_object()) {
+    return absl::InvalidArgumentError(absl::StrCat("weights metadata: time_base.", key, " must be an object"));
+  }
+  for (const auto& [name, value] : per.items()) {
+    absl::StatusOr<int> row = m.StyleIndex(name);
+    if (!row.ok() || *row >= static_cast<int>(m.styles().size())) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("weights metadata: time_base.", key, " names unknown style '", name, "'"));
+    }
+    const bool ok_type = integer ? value.is_number_integer() : value.is_number();
+    const double v = ok_type ? value.get<double>() : lo - 1.0;
+    if (!(v >= lo && v <= hi)) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("weights metadata: time_base.", key, "['", name, "'] must be in ", range));
+    }
+    (*out)[*row] = v;
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
 
 absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFile& weights) {
   DANCE_ASSIGN_OR_RETURN(SequenceModel seq, SequenceModel::Load(weights));
@@ -64,23 +92,8 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
       m->tempo_reference_bpm_ = ref;
       m->style_reference_bpm_.assign(m->styles_.size(), ref);
       if (tb.contains("style_reference_bpm")) {
-        const nlohmann::json& per = tb["style_reference_bpm"];
-        if (!per.is_object()) {
-          return absl::InvalidArgumentError("weights metadata: time_base.style_reference_bpm must be an object");
-        }
-        for (const auto& [name, value] : per.items()) {
-          absl::StatusOr<int> row = m->StyleIndex(name);
-          if (!row.ok() || *row >= static_cast<int>(m->styles_.size())) {
-            return absl::InvalidArgumentError(
-                absl::StrCat("weights metadata: time_base.style_reference_bpm names unknown style '", name, "'"));
-          }
-          const double r = value.is_number() ? value.get<double>() : 0.0;
-          if (!(r >= 30.0 && r <= 300.0)) {
-            return absl::InvalidArgumentError(absl::StrCat(
-                "weights metadata: time_base.style_reference_bpm['", name, "'] must be in 30..300 BPM"));
-          }
-          m->style_reference_bpm_[*row] = r;
-        }
+        DANCE_RETURN_IF_ERROR(ReadPerStyle(*m, tb["style_reference_bpm"], "style_reference_bpm", 30.0, 300.0,
+                                           false, "30..300 BPM", &m->style_reference_bpm_));
       }
       if (tb.contains("bar_clock")) {
         const nlohmann::json& bc = tb["bar_clock"];
@@ -93,45 +106,17 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
         m->beats_per_bar_ = beats;
         m->style_beats_per_bar_.assign(m->styles_.size(), beats);
         if (bc.contains("style_beats_per_bar")) {
-          const nlohmann::json& per = bc["style_beats_per_bar"];
-          if (!per.is_object()) {
-            return absl::InvalidArgumentError(
-                "weights metadata: time_base.bar_clock.style_beats_per_bar must be an object");
-          }
-          for (const auto& [name, value] : per.items()) {
-            absl::StatusOr<int> row = m->StyleIndex(name);
-            if (!row.ok() || *row >= static_cast<int>(m->styles_.size())) {
-              return absl::InvalidArgumentError(absl::StrCat(
-                  "weights metadata: time_base.bar_clock.style_beats_per_bar names unknown style '", name, "'"));
-            }
-            const int b = beats_of(value);
-            if (b < 1 || b > 16) {
-              return absl::InvalidArgumentError(absl::StrCat(
-                  "weights metadata: time_base.bar_clock.style_beats_per_bar['", name, "'] must be in 1..16"));
-            }
-            m->style_beats_per_bar_[*row] = b;
-          }
+          std::vector<double> per(m->styles_.size(), beats);
+          DANCE_RETURN_IF_ERROR(ReadPerStyle(*m, bc["style_beats_per_bar"], "bar_clock.style_beats_per_bar", 1.0,
+                                             16.0, true, "1..16", &per));
+          m->style_beats_per_bar_.assign(per.begin(), per.end());
         }
       }
       if (tb.contains("dance_period_beats")) {
-        const nlohmann::json& per = tb["dance_period_beats"];
-        if (!per.is_object()) {
-          return absl::InvalidArgumentError("weights metadata: time_base.dance_period_beats must be an object");
-        }
-        if (!per.empty()) m->dance_period_beats_.assign(m->styles_.size(), 0.0);
-        for (const auto& [name, value] : per.items()) {
-          absl::StatusOr<int> row = m->StyleIndex(name);
-          if (!row.ok() || *row >= static_cast<int>(m->styles_.size())) {
-            return absl::InvalidArgumentError(absl::StrCat(
-                "weights metadata: time_base.dance_period_beats names unknown style '", name, "'"));
-          }
-          const double b = value.is_number() ? value.get<double>() : 0.0;
-          if (!(b >= 0.5 && b <= 16.0)) {
-            return absl::InvalidArgumentError(absl::StrCat(
-                "weights metadata: time_base.dance_period_beats['", name, "'] must be in 0.5..16 beats"));
-          }
-          m->dance_period_beats_[*row] = b;
-        }
+        std::vector<double> per(m->styles_.size(), 0.0);
+        DANCE_RETURN_IF_ERROR(ReadPerStyle(*m, tb["dance_period_beats"], "dance_period_beats", 0.5, 16.0, false,
+                                           "0.5..16 beats", &per));
+        if (!tb["dance_period_beats"].empty()) m->dance_period_beats_ = std::move(per);
       }
       if (tb.contains("period_lock")) {
         const double lock = tb["period_lock"].is_number() ? tb["period_lock"].get<double>() : -1.0;
