@@ -49,7 +49,7 @@ def stage_vq(args, run: pathlib.Path, log: Logger) -> dict:
   vqs = {}
   for part, dim in (("upper", 45), ("lower", 31)):
     cfg = VQConfig(in_dim=dim, width=args.vq_width, code_dim=args.vq_code_dim,
-                   codebook_size=args.codebook_size)
+                   codebook_size=args.codebook_size, path_weight=args.vq_path_weight)
     arrays = [getattr(c, part) for c in train]
     vqs[part], hist = train_vq(part, arrays, cfg, args.vq_iters, run / f"vq_{part}.pt", log)
     (run / f"vq_{part}_history.json").write_text(json.dumps(hist))
@@ -99,6 +99,8 @@ def main(argv=None) -> int:
   ap.add_argument("--vq-width", type=int, default=128)
   ap.add_argument("--vq-code-dim", type=int, default=64)
   ap.add_argument("--codebook-size", type=int, default=512)
+  ap.add_argument("--vq-path-weight", type=float, default=0.0,
+                  help="lower-body VQ-VAE: weight of the integrated root path loss (train_vq.vq_loss)")
   ap.add_argument("--seq-iters", type=int, default=500,
                   help="iterations of the sequence model (the tempo-normalised phase when pretraining; "
                        "also the default of fixed-rate runs, --tempo-ref 0)")

@@ -1,8 +1,10 @@
 """Pose VQ-VAE training (upper and lower body) and its validation report.
 
-Losses (Bailando's recipe plus the root path): smooth-L1 reconstruction of the normalised features, their
-velocity and acceleration, commitment; for the lower body also the integrated root path and heading over
-the whole window (metres, radians), so that decoded velocities do not drift when integrated.
+Losses (Bailando's recipe): smooth-L1 reconstruction of the normalised features, their velocity and
+acceleration, commitment. For the lower body an optional term (`VQConfig.path_weight`, default 0) adds the
+integrated root path and heading error over the whole window (metres, radians). It was on (weight 1) until
+2026-12-02 and was measured to cost most of the lower body's pose accuracy for little less drift
+(docs/training.md, "The VQ-VAE's root path loss"), so it is off.
 """
 from __future__ import annotations
 
@@ -43,7 +45,7 @@ def vq_loss(vq: PoseVQVAE, x: torch.Tensor, part: str) -> tuple[torch.Tensor, di
     th_r, p_r = integrate_root_torch(vq.denormalise(recon))
     th_x, p_x = integrate_root_torch(x)
     path = (p_r - p_x).norm(dim=-1).mean() * 10.0 + (th_r - th_x).abs().mean()
-    loss = loss + path
+    loss = loss + vq.cfg.path_weight * path
     logs["path"] = float(path)
   return loss, logs
 

@@ -70,3 +70,20 @@ def test_root_integration_matches_representation():
   th_t, path_t = integrate_root_torch(torch.from_numpy(lower)[None])
   np.testing.assert_allclose(th_t[0].numpy(), theta, atol=1e-9)
   np.testing.assert_allclose(path_t[0].numpy(), root[:, [0, 2]], atol=1e-9)
+
+
+def test_vq_path_weight_scales_only_the_root_path_term():
+  from training.model.vqvae import PoseVQVAE
+  from training.train_vq import vq_loss
+  torch.manual_seed(0)
+  x = torch.randn(2, 16, 31) * 0.02
+  losses = {}
+  for w in (0.0, 1.0, 3.0):
+    torch.manual_seed(1)  # same weights and same codebook initialisation for every weight
+    vq = PoseVQVAE(VQConfig(in_dim=31, width=8, code_dim=4, codebook_size=8, path_weight=w))
+    vq.eval()
+    losses[w] = vq_loss(vq, x, "lower")
+  path = losses[1.0][1]["path"]
+  assert path > 0
+  assert abs(float(losses[1.0][0]) - float(losses[0.0][0]) - path) < 1e-5
+  assert abs(float(losses[3.0][0]) - float(losses[0.0][0]) - 3 * path) < 1e-5

@@ -73,6 +73,7 @@ class VQConfig:
   n_res: int = 2                  # residual blocks per resolution
   ema_decay: float = 0.99
   commit_weight: float = 0.02
+  path_weight: float = 0.0        # lower body: weight of the integrated root path/heading loss (train_vq)
 
   def to_dict(self) -> dict:
     return dataclasses.asdict(self)
