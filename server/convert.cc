@@ -42,7 +42,7 @@ absl::StatusOr<SamplingConfig> SamplingFromProto(const dance::v1::Sampling& s) {
   c.temperature = s.temperature();
   c.top_k = s.top_k();
   c.top_p = s.top_p() == 0.0f ? 1.0f : s.top_p();
-  c.guidance = s.guidance() == 0.0f ? 1.0f : s.guidance();
+  c.guidance = s.guidance() == 0.0f ? -1.0f : s.guidance();  // 0: the model's default (negative)
   if (s.has_period_lock()) {
     if (!(s.period_lock() >= 0.0f && s.period_lock() <= 100.0f)) {
       return absl::InvalidArgumentError("sampling.period_lock must be in [0, 100]");
@@ -131,7 +131,7 @@ absl::Status Number(const json& j, const char* key, T* out) {
 }
 
 absl::Status SamplingJson(const json& j, dance::v1::Sampling* s, bool* any) {
-  float t = 1.0f, p = 1.0f, g = 1.0f;
+  float t = 1.0f, p = 1.0f, g = 0.0f;  // guidance absent: 0, the model's default
   int k = 0;
   for (const char* key : {"temperature", "top_k", "top_p", "guidance", "period_lock"}) {
     if (j.contains(key)) *any = true;
@@ -199,7 +199,8 @@ absl::StatusOr<dance::v1::Control> ControlFromJson(const json& j) {
 nlohmann::json ModelToJson(const ModelDescription& m) {
   return json{{"model_id", m.model_id},       {"latency_ms", m.latency_ms}, {"fps", m.fps},
               {"joint_names", m.joint_names}, {"parents", m.parents},       {"rest_offsets", m.rest_offsets},
-              {"styles", m.styles}, {"default_period_lock", m.default_period_lock}};
+              {"styles", m.styles}, {"default_period_lock", m.default_period_lock},
+              {"default_guidance", m.default_guidance}};
 }
 
 nlohmann::json SummaryToJson(const dance::v1::SessionSummary& s) {

@@ -77,6 +77,7 @@ class EngineBackendImpl final : public EngineBackend {
     for (const Eigen::Vector3f& o : sk.offsets) desc_.rest_offsets.insert(desc_.rest_offsets.end(), {o.x(), o.y(), o.z()});
     desc_.styles = model_->styles();
     desc_.default_period_lock = model_->default_period_lock();
+    desc_.default_guidance = model_->default_guidance();
   }
 
   const ModelDescription& Describe() const override { return desc_; }

@@ -34,7 +34,7 @@ struct SamplingConfig {
   float temperature = 1.0f;  // 0 = greedy
   int top_k = 0;             // 0 = off
   float top_p = 1.0f;        // 1 = off
-  float guidance = 1.0f;     // 1 = off
+  float guidance = -1.0f;    // 1 = off, negative = the model's default
   float period_lock = -1.0f; // 0 = off, negative = the model's default
 };
 
@@ -60,6 +60,7 @@ struct ModelDescription {
   std::vector<float> rest_offsets;       // kNumJoints * 3, metres
   std::vector<std::string> styles;
   float default_period_lock = 0.0f;  // Sampling.period_lock when absent (0 = off)
+  float default_guidance = 1.0f;     // Sampling.guidance when 0 (1 = off)
 };
 
 struct FrameData {

@@ -230,6 +230,23 @@ def convert_dncw(src: str, dst: str, dtype: str = "f16") -> dict[str, str]:
   return dtypes
 
 
+def set_metadata(path: str, assignments: Mapping[str, object]) -> dict:
+  """Rewrites `path` in place with metadata fields set ("a.b" = nested key; dicts are created on the way),
+  tensors and their dtypes bit-exact. Returns the new metadata."""
+  header, tensors = read_dncw(path)
+  meta = header.get("metadata", {})
+  for key, value in assignments.items():
+    node = meta
+    *parents, leaf = key.split(".")
+    for k in parents:
+      node = node.setdefault(k, {})
+      if not isinstance(node, dict):
+        raise ValueError(f"metadata {key}: {k} is not an object")
+    node[leaf] = value
+  write_dncw(path, tensors, meta, {e["name"]: e["dtype"] for e in header["tensors"]})
+  return meta
+
+
 def dtype_summary(header: dict) -> str:
   """Tensor count and stored bytes per dtype of a header's tensor entries, e.g. "f16: 180 tensors ..."."""
   count, size = {}, {}
@@ -358,9 +375,20 @@ def main(argv: list[str] | None = None) -> None:
                   help="rewrite IN as OUT with the tensor dtypes of --dtype (metadata unchanged), then check OUT")
   ap.add_argument("--dtype", choices=sorted(DTYPES), default="f16",
                   help="for --convert: f16 = the f16 policy (docs/weights-format.md), f32 = every tensor f32")
+  ap.add_argument("--set-meta", nargs="+", metavar=("FILE", "KEY=JSON"),
+                  help="rewrite FILE in place with metadata KEY (a.b for nested) set to the JSON value, tensors "
+                       "bit-exact; e.g. --set-meta models/default.dncw sampling.guidance=3")
   args = ap.parse_args(argv)
-  if not args.check and not args.convert:
-    ap.error("nothing to do: give --check FILE or --convert IN OUT")
+  if not args.check and not args.convert and not args.set_meta:
+    ap.error("nothing to do: give --check FILE, --convert IN OUT or --set-meta FILE KEY=JSON ...")
+  if args.set_meta:
+    path, *pairs = args.set_meta
+    if not pairs or any("=" not in p for p in pairs):
+      ap.error("--set-meta FILE KEY=JSON [KEY=JSON ...]")
+    before = read_dncw(path)[1]
+    set_metadata(path, {k: json.loads(v) for k, v in (p.split("=", 1) for p in pairs)})
+    print(f"{path}: set {', '.join(pairs)}; {change_summary(before, read_dncw(path)[1])}")
+    args.check = args.check or path
   if args.convert:
     src, dst = args.convert
     with open(src, "rb") as f:

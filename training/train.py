@@ -127,6 +127,9 @@ def main(argv=None) -> int:
                   help="tempo-normalised runs: the engine's default period lock weight written into the model "
                        "(time_base.period_lock, with each style's dance period measured on the training dances; "
                        "docs/model.md section 7); 0 = off")
+  ap.add_argument("--guidance", type=float, default=3.0,
+                  help="the engine's default style guidance weight written into the model (sampling.guidance; "
+                       "docs/model.md section 6); 1 = off")
   ap.add_argument("--tempo-factors", default=",".join(str(f) for f in td.TEMPO_FACTORS))
   ap.add_argument("--vq-run", default=None, help="take the VQ-VAEs from this run directory")
   ap.add_argument("--vq-model", default=None, help="take the VQ-VAEs from this exported .dncw file")
@@ -141,6 +144,8 @@ def main(argv=None) -> int:
   args = ap.parse_args(argv)
   if not 0.0 <= args.period_lock <= 100.0:
     ap.error(f"--period-lock must be in [0, 100], got {args.period_lock}")
+  if not 0.0 <= args.guidance <= 100.0:
+    ap.error(f"--guidance must be in [0, 100], got {args.guidance}")
   torch.set_num_threads(args.threads)
   os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
   run = pathlib.Path(args.run)

@@ -328,6 +328,7 @@ def stage_export(args, vqs, run: pathlib.Path, log) -> None:
   if args.tempo_ref > 0:
     extra["time_base"]["dance_period_beats"] = dance_periods_of(args, run, log)
     extra["time_base"]["period_lock"] = float(getattr(args, "period_lock", 0.0))
+  extra["sampling"] = {"guidance": float(getattr(args, "guidance", 1.0))}
   for name in ("vq_report.json", "eval_report.json"):
     if (run / name).is_file():
       extra["training"][name.removesuffix(".json")] = json.loads((run / name).read_text())

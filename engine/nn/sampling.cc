@@ -16,8 +16,9 @@ absl::Status ValidateSamplingOptions(const SamplingOptions& o) {
   if (!(o.top_p > 0.0f && o.top_p <= 1.0f)) {
     return absl::InvalidArgumentError(absl::StrCat("sampling: top_p must be in (0, 1], got ", o.top_p));
   }
-  if (!(o.guidance >= 0.0f) || !std::isfinite(o.guidance)) {
-    return absl::InvalidArgumentError(absl::StrCat("sampling: guidance must be >= 0, got ", o.guidance));
+  if (!(o.guidance <= 100.0f) || !std::isfinite(o.guidance)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("sampling: guidance must be <= 100 (negative = the model's default), got ", o.guidance));
   }
   if (!(o.period_lock <= 100.0f) || !std::isfinite(o.period_lock)) {
     return absl::InvalidArgumentError(

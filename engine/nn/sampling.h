@@ -29,12 +29,15 @@
 namespace dance::engine {
 
 inline constexpr float kModelDefaultPeriodLock = -1.0f;
+inline constexpr float kModelDefaultGuidance = -1.0f;
 
 struct SamplingOptions {
   float temperature = 1.0f;  // >= 0; 0 = greedy
   int top_k = 0;             // >= 0; 0 = no top-k cut
   float top_p = 1.0f;        // (0, 1]; 1 = no nucleus cut
-  float guidance = 1.0f;     // classifier-free guidance weight w (>= 0); 1 = conditional logits only
+  // Classifier-free style guidance weight w (<= 100); 1 = conditional logits only, negative = the model's
+  // default (Model::default_guidance). The caller combines the logits (ApplyGuidance).
+  float guidance = kModelDefaultGuidance;
   // Period lock (sessions of a tempo-normalised model with dance periods; docs/model.md section 6): weight
   // (<= 100) of the logit bias toward the codes of one dance period ago; 0 = off, negative = the model's
   // default (Model::default_period_lock). SampleCode ignores it.

@@ -133,6 +133,17 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
           absl::StrCat("weights metadata: unknown time_base '", tb.dump(), "' (expected kind fixed or tempo)"));
     }
   }
+  if (m->metadata_.contains("sampling")) {
+    const nlohmann::json& sm = m->metadata_["sampling"];
+    if (!sm.is_object()) return absl::InvalidArgumentError("weights metadata: sampling must be an object");
+    if (sm.contains("guidance")) {
+      const double g = sm["guidance"].is_number() ? sm["guidance"].get<double>() : -1.0;
+      if (!(g >= 0.0 && g <= 100.0)) {
+        return absl::InvalidArgumentError("weights metadata: sampling.guidance must be a number in 0..100");
+      }
+      m->default_guidance_ = static_cast<float>(g);
+    }
+  }
   return std::shared_ptr<const Model>(std::move(m));
 }
 

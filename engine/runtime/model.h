@@ -66,6 +66,9 @@ class Model {
   // The period lock weight sessions use when SamplingOptions::period_lock is negative (metadata
   // "time_base": {..., "period_lock": B}, which needs dance_period_beats); 0 = off (models without it).
   float default_period_lock() const { return default_period_lock_; }
+  // The style guidance weight sessions use when SamplingOptions::guidance is negative (metadata
+  // "sampling": {"guidance": W}, 0..100); 1 = off (models without it).
+  float default_guidance() const { return default_guidance_; }
   // The codebooks with unit-length rows, (K, code_dim): stream 0 upper, 1 lower (cosine similarity of codes).
   const RowMatrix& unit_codebook(int stream) const { return unit_codebook_[stream]; }
   // The header metadata, for tools that copy it (feature config, training info).
@@ -88,6 +91,7 @@ class Model {
   std::vector<int> style_beats_per_bar_;      // per style row (n_styles)
   std::vector<double> dance_period_beats_;    // per style row (n_styles); empty = none
   float default_period_lock_ = 0.0f;
+  float default_guidance_ = 1.0f;
   std::array<RowMatrix, 2> unit_codebook_;    // upper, lower
 };
 

@@ -108,7 +108,7 @@ absl::Status Session::SetStyle(const std::vector<std::pair<std::string, float>>&
 
 absl::Status Session::SetSampling(const SamplingOptions& sampling) {
   DANCE_RETURN_IF_ERROR(ValidateSamplingOptions(sampling));
-  if (sampling.guidance != 1.0f && sampling_.guidance == 1.0f) {
+  if (EffectiveGuidance(sampling) != 1.0f && guidance() == 1.0f) {
     // Guidance switched on mid-stream: the unconditional lane has not followed; start it from the
     // conditional lane's history (the closest state it can have) with style "none".
     Eigen::MatrixXf none_bias = uncond_.style_bias;
@@ -230,12 +230,14 @@ void Session::SampleCodes(const float* logits_u, const float* logits_l, const fl
                           const float* uncond_l) {
   const SeqConfig& c = model_->config();
   const int k = c.codebook_size;
+  heading_history_.push_back(pose_.yaw);  // the heading after every frame of the previous steps
+  if (heading_history_.size() > kMaxCodeHistory + 1) heading_history_.pop_front();
   absl::Span<const float> lu(logits_u, k), ll(logits_l, k);
   if (uncond_u != nullptr) {
     std::copy(logits_u, logits_u + k, guided_u_.begin());
     std::copy(logits_l, logits_l + k, guided_l_.begin());
-    ApplyGuidance(absl::MakeConstSpan(uncond_u, k), sampling_.guidance, absl::MakeSpan(guided_u_));
-    ApplyGuidance(absl::MakeConstSpan(uncond_l, k), sampling_.guidance, absl::MakeSpan(guided_l_));
+    ApplyGuidance(absl::MakeConstSpan(uncond_u, k), guidance(), absl::MakeSpan(guided_u_));
+    ApplyGuidance(absl::MakeConstSpan(uncond_l, k), guidance(), absl::MakeSpan(guided_l_));
     lu = guided_u_;
     ll = guided_l_;
   }
@@ -245,7 +247,7 @@ void Session::SampleCodes(const float* logits_u, const float* logits_l, const fl
       std::copy(logits_l, logits_l + k, guided_l_.begin());
     }
     if (PeriodMoves(0)) ApplyPeriodLock(0, absl::MakeSpan(guided_u_));
-    if (PeriodMoves(1)) ApplyPeriodLock(1, absl::MakeSpan(guided_l_));
+    if (PeriodMoves(1) && !PeriodTurned()) ApplyPeriodLock(1, absl::MakeSpan(guided_l_));
     lu = guided_u_;
     ll = guided_l_;
   }
@@ -277,6 +279,13 @@ bool Session::PeriodMoves(int stream) {
   // repeats only a period in which this stream moved.
   return PeriodMoved(code_history_, stream, lock_lag(), model_->config().codebook_size, &lock_seen_);
 }
+
+bool PeriodTurned(const std::deque<double>& headings, size_t lag, double max_turn) {
+  if (lag == 0 || headings.size() < lag + 1) return false;
+  return std::abs(headings.back() - headings[headings.size() - 1 - lag]) > max_turn;
+}
+
+bool Session::PeriodTurned() const { return engine::PeriodTurned(heading_history_, lock_lag()); }
 
 void Session::ApplyPeriodLock(int stream, absl::Span<float> logits) {
   // The target is the code n = round(L) steps back (L = period_steps_, rarely an integer): a constant lag,
@@ -402,6 +411,7 @@ absl::StatusOr<SessionSnapshot> Session::Snapshot() const {
   s.bar_frames = bar_frames_;
   s.period_steps = period_steps_;
   s.code_history = code_history_;
+  s.heading_history = heading_history_;
   s.output = output_;
   return s;
 }
@@ -423,6 +433,9 @@ absl::Status Session::Restore(const SessionSnapshot& s) {
     if (up < 0 || up >= k || low < 0 || low >= k || s.code_history.size() > kMaxCodeHistory) {
       return absl::InvalidArgumentError("session restore: snapshot has codes outside this model's codebook");
     }
+  }
+  if (s.heading_history.size() > kMaxCodeHistory + 1) {
+    return absl::InvalidArgumentError("session restore: snapshot's heading history is too long");
   }
   DANCE_RETURN_IF_ERROR(ValidateSamplingOptions(s.sampling));
   DANCE_RETURN_IF_ERROR(front_end_->Restore(s.front_end));
@@ -447,6 +460,7 @@ absl::Status Session::Restore(const SessionSnapshot& s) {
   bar_frames_ = s.bar_frames;
   period_steps_ = s.period_steps;
   code_history_ = s.code_history;
+  heading_history_ = s.heading_history;
   output_ = s.output;
   return absl::OkStatus();
 }
@@ -468,6 +482,7 @@ void Session::Reset() {
   ApplyStyle(options_.style).IgnoreError();  // validated by Create
   upper_code_ = lower_code_ = model_->config().codebook_size;
   code_history_.clear();
+  heading_history_.clear();
   upper_state_.Clear();
   lower_state_.Clear();
   pose_ = PoseState();
@@ -480,7 +495,8 @@ int64_t Session::StateBytes() const {
   if (uses_guidance()) n += uncond_.Bytes();
   n += static_cast<int64_t>(sizeof(audio::AudioFrontEnd) + sizeof(audio::FeatureExtractorState));
   n += static_cast<int64_t>((pending_features_.capacity() + pending_pre_.capacity()) * sizeof(float));
-  n += static_cast<int64_t>(code_history_.size() * sizeof(code_history_[0]) + lock_sim_.size() * sizeof(float) +
+  n += static_cast<int64_t>(code_history_.size() * sizeof(code_history_[0]) +
+                            heading_history_.size() * sizeof(double) + lock_sim_.size() * sizeof(float) +
                             lock_seen_.capacity());
   n += static_cast<int64_t>(warp_.source.size() * sizeof(int64_t) + warp_.starts.size() * sizeof(double) +
                             warp_.poses.size() * (sizeof(warp_.poses[0]) + sizeof(warp_.pose_codes[0])));

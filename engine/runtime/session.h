@@ -117,6 +117,7 @@ struct SessionSnapshot {
   double bar_frames = 0.0;
   double period_steps = 0.0;
   std::deque<std::pair<int, int>> code_history;
+  std::deque<double> heading_history;
   std::vector<PoseFrame> output;
 };
 
@@ -163,6 +164,8 @@ class Session {
   float period_lock() const {
     return sampling_.period_lock < 0.0f ? model_->default_period_lock() : sampling_.period_lock;
   }
+  // The style guidance weight in effect (SamplingOptions::guidance, or the model's default if negative).
+  float guidance() const { return EffectiveGuidance(sampling_); }
   // The (upper, lower) codes of the last step (the BOS code K before the first).
   std::pair<int, int> last_codes() const { return {upper_code_, lower_code_}; }
   // Approximate bytes of per-session state (caches, states, buffers).
@@ -176,7 +179,10 @@ class Session {
   absl::Status ApplyStyle(const std::vector<std::pair<std::string, float>>& style);
   // Moves the front end's finished frames into pending_.
   void CollectFrames();
-  bool uses_guidance() const { return sampling_.guidance != 1.0f; }
+  float EffectiveGuidance(const SamplingOptions& s) const {
+    return s.guidance < 0.0f ? model_->default_guidance() : s.guidance;
+  }
+  bool uses_guidance() const { return guidance() != 1.0f; }
   // Pointers to this step's music token (4F) and PRE (P), valid until the next PushAudio.
   void StepInputs(const float** music, const float** pre);
   // After the model ran: sample this step's codes from the lane logits (guidance and the period lock
@@ -191,6 +197,9 @@ class Session {
   void ApplyPeriodLock(int stream, absl::Span<float> logits);
   // Whether `stream` moved over the last lock_lag() steps (at least half of them distinct codes).
   bool PeriodMoves(int stream);
+  // Whether the body turned by more than kPeriodLockMaxTurn over the last lock_lag() steps (the lower
+  // body's lock does not repeat such a period).
+  bool PeriodTurned() const;
   // One dance period in whole steps (>= 1).
   size_t lock_lag() const { return static_cast<size_t>(std::max(1.0, std::round(period_steps_))); }
   WarpState NewWarpState() const;
@@ -220,6 +229,7 @@ class Session {
   double bar_frames_ = 0.0;           // bar clock period in warped frames (0 = no bar clock)
   double period_steps_ = 0.0;         // the style's dance period in warped steps (0 = unknown: no lock)
   std::deque<std::pair<int, int>> code_history_;  // (upper, lower) codes of the last steps, oldest first
+  std::deque<double> heading_history_;            // pose_.yaw at the start of the last steps, oldest first
   SamplerScratch sampler_;
   std::vector<float> guided_u_, guided_l_;  // (K) scratch
   Eigen::VectorXf lock_sim_;                // (K) scratch of the period lock
@@ -232,6 +242,16 @@ class Session {
 // scratch (codebook_size entries).
 bool PeriodMoved(const std::deque<std::pair<int, int>>& history, int stream, size_t lag, int codebook_size,
                  std::vector<uint8_t>* seen = nullptr);
+
+// The lower body's period lock is released for a period that turned the body by more than this (radians):
+// repeating such a period spins the dancer without end (measured on the default model: 4-6 rad/s held for
+// minutes, against real dancers' ~1 rad/s; docs/model.md section 6). Half a turn is about the 80th
+// percentile of the real dancers' turn per 2 s (about one waltz bar).
+inline constexpr double kPeriodLockMaxTurn = 3.14159265358979;
+
+// Whether the heading changed by more than `max_turn` over the last `lag` steps of `headings` (the heading
+// at the start of each step, oldest first; needs lag + 1 entries, false with fewer).
+bool PeriodTurned(const std::deque<double>& headings, size_t lag, double max_turn = kPeriodLockMaxTurn);
 
 // Advances each session by one step with one pass over the weights for all of them (every Linear is a
 // matrix-matrix product over the batch). Every session must have StepsReady() > 0 (FailedPrecondition

@@ -160,7 +160,7 @@ absl::Status Run(Flags flags) {
                 {"temperature", flags.sampling.temperature},
                 {"top_k", flags.sampling.top_k},
                 {"top_p", flags.sampling.top_p},
-                {"guidance", flags.sampling.guidance},
+                {"guidance", s.guidance()},
                 {"period_lock", s.period_lock()},
                 {"audio_file", flags.audio},
                 {"audio_duration_s", duration},

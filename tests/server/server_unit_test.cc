@@ -51,6 +51,12 @@ TEST(Convert, ValidHeaderIsAccepted) {
   EXPECT_EQ(v->config.sampling.period_lock, 0.0f);
   h.mutable_sampling()->set_period_lock(12.0f);
   EXPECT_EQ(ValidateHeader(h, Model(), {})->config.sampling.period_lock, 12.0f);
+  // Guidance 0 (unset) is the model's default (negative for the engine); 1 is off; others as given.
+  EXPECT_LT(v->config.sampling.guidance, 0.0f);
+  h.mutable_sampling()->set_guidance(1.0f);
+  EXPECT_EQ(ValidateHeader(h, Model(), {})->config.sampling.guidance, 1.0f);
+  h.mutable_sampling()->set_guidance(3.0f);
+  EXPECT_EQ(ValidateHeader(h, Model(), {})->config.sampling.guidance, 3.0f);
 }
 
 TEST(Convert, BadHeadersNameTheField) {

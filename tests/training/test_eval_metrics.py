@@ -142,6 +142,21 @@ def test_foot_skating_and_jitter():
   assert metrics.jitter(noisy) > 10 * metrics.jitter(planted)
 
 
+def test_turn_rate_and_spin_flag():
+  from training.data.representation import rot_y
+  still = _dance(seconds=10)
+  centre = still[:, :1].copy()
+  centre[..., 1] = 0.0
+  yaw = np.arange(len(still)) * (4.0 / FPS)      # turning at 4 rad/s about the pelvis
+  spinning = np.einsum("tij,tnj->tni", rot_y(yaw), still - centre) + centre
+  assert metrics.turn_rate(still) < 0.05
+  assert metrics.turn_rate(spinning) == pytest.approx(4.0, rel=0.02)
+  assert metrics.turn_rate(spinning[::-1]) == pytest.approx(4.0, rel=0.02)   # either direction
+  rows = evaluate.segment_table([evaluate.Dance("a", still), evaluate.Dance("b", spinning)],
+                                beats_of=lambda d: np.zeros(0))["rows"]
+  assert [r["spin"] for r in rows] == [0.0, 1.0]
+
+
 def test_bone_length_error_and_pfc():
   pos = _dance(seconds=10)
   stretched = pos.copy()
@@ -248,3 +263,27 @@ def test_dance_period_beats_measures_each_styles_period_on_the_warped_timeline(t
   monkeypatch.setattr(td, "load_warped_clip", lambda mid, ref: Clip(_dance(seconds=40, period=dances[mid][1],
                                                                            sway=0.0)))
   assert td.dance_period_beats(list(dances), refs) == {"cha-cha": 2, "waltz": 3}
+
+
+def test_style_probe_tells_raised_arms_from_a_hold():
+  from training.eval import style_probe
+  def style_dance(raised: bool, seed: int):
+    pos = _dance(seconds=20, seed=seed, period=0.8 + 0.1 * seed)
+    for j in (J["left_wrist"], J["right_wrist"], J["left_hand"], J["right_hand"]):
+      pos[:, j, 1] += 0.45 if raised else 0.0
+    return evaluate.Dance(f"d{seed}", pos, style="cha-cha" if raised else "waltz")
+  train = [style_dance(k % 2 == 0, k) for k in range(6)]
+  x, y, names = style_probe.dance_segments(train)
+  assert x.shape == (12, style_probe.DESCRIPTOR_DIMS) and len(y) == len(names) == 12
+  probe = style_probe.StyleProbe(x, y)
+  test = [style_dance(True, 11), style_dance(False, 12)]
+  xt, yt, _ = style_probe.dance_segments(test)
+  assert probe.predict(xt) == yt
+  r = style_probe.report("synthetic", yt, probe.predict(xt))
+  assert r["accuracy"] == 1.0 and r["confusion"][0][0] == 2 and r["confusion"][3][3] == 2
+  # Swapping the labels swaps the calls: the probe learns from the labels, not from a fixed rule.
+  flipped = style_probe.StyleProbe(x, ["waltz" if s == "cha-cha" else "cha-cha" for s in y])
+  assert yt == ["cha-cha", "cha-cha", "waltz", "waltz"]
+  assert flipped.predict(xt) == ["waltz", "waltz", "cha-cha", "cha-cha"]
+  with pytest.raises(ValueError):
+    style_probe.StyleProbe(x, ["waltz"] * len(y))

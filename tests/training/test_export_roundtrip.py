@@ -207,3 +207,22 @@ def test_read_refuses_unknown_dtype_and_f16_nbytes(tmp_path):
     read_dncw(str(patched(b'"f16"', b'"i16"')))
   with pytest.raises(ValueError, match="nbytes"):
     read_dncw(str(patched(b'"nbytes":8', b'"nbytes":4')))
+
+
+def test_set_meta_changes_only_the_named_fields(tmp_path):
+  src = REPO / "models" / "test-tiny.dncw"
+  path = tmp_path / "tiny.dncw"
+  _run_export("--convert", str(src), str(path), "--dtype", "f16")
+  h0, t0 = read_dncw(str(path))
+  report = _run_export("--set-meta", str(path), "sampling.guidance=3", 'model_id="tiny-2"')
+  assert "sampling.guidance=3" in report and "model_id=tiny-2" in report
+  h1, t1 = read_dncw(str(path))
+  want = json.loads(json.dumps(h0["metadata"]))
+  want["sampling"] = {"guidance": 3}
+  want["model_id"] = "tiny-2"
+  assert h1["metadata"] == want
+  assert [(e["name"], e["dtype"]) for e in h1["tensors"]] == [(e["name"], e["dtype"]) for e in h0["tensors"]]
+  for name, a in t0.items():
+    np.testing.assert_array_equal(_bits(t1[name]), _bits(a), err_msg=name)
+  with pytest.raises(subprocess.CalledProcessError):
+    _run_export("--set-meta", str(path), "sampling.guidance")   # no value

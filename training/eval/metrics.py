@@ -155,3 +155,12 @@ def bone_length_error(positions: np.ndarray, parents: np.ndarray, lengths: np.nd
   cv = bl.std(0) / (bl.mean(0) + 1e-9)
   return {"bone_err_mm": float(err.mean() * 1000), "bone_err_max_mm": float(err.max() * 1000),
           "bone_cv_pct": float(cv.mean() * 100)}
+
+
+def turn_rate(positions: np.ndarray, fps: float = 30.0) -> float:
+  """Mean absolute turning speed of the body's facing (hips and shoulders), rad/s."""
+  from training.data.representation import facing_yaw
+  yaw = np.unwrap(facing_yaw(np.asarray(positions, dtype=np.float64)))
+  if len(yaw) < 2:
+    return 0.0
+  return float(np.abs(np.diff(yaw)).mean() * fps)

@@ -134,7 +134,9 @@ TEST(Sampling, ValidationNamesTheBadField) {
   EXPECT_FALSE(ValidateSamplingOptions({.top_k = -1}).ok());
   EXPECT_FALSE(ValidateSamplingOptions({.top_p = 0.0f}).ok());
   EXPECT_FALSE(ValidateSamplingOptions({.top_p = 1.5f}).ok());
-  EXPECT_FALSE(ValidateSamplingOptions({.guidance = -1.0f}).ok());
+  EXPECT_TRUE(ValidateSamplingOptions({.guidance = kModelDefaultGuidance}).ok());  // the model's default
+  EXPECT_FALSE(ValidateSamplingOptions({.guidance = 100.5f}).ok());
+  EXPECT_FALSE(ValidateSamplingOptions({.guidance = std::nanf("")}).ok());
   EXPECT_NE(ValidateSamplingOptions({.temperature = -1.0f}).message().find("temperature"), std::string::npos);
 }
 

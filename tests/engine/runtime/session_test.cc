@@ -194,6 +194,43 @@ TEST(Session, StepBatchMatchesSteppingAlone) {
   }
 }
 
+TEST(Session, GuidanceDefaultsToTheModels) {
+  // Negative SamplingOptions::guidance = the model's metadata "sampling": {"guidance": W} (1 without it).
+  testing::TinyModelOptions o;
+  auto plain = LoadTinyModel(o);
+  o.guidance = 2.5;
+  auto guided = LoadTinyModel(o);
+  EXPECT_EQ(plain->default_guidance(), 1.0f);
+  EXPECT_EQ(guided->default_guidance(), 2.5f);
+  const std::vector<float> audio = TestAudio(2.5);
+  auto run = [&](std::shared_ptr<const Model> m, float w) {
+    SessionOptions opt = Opts(3);
+    opt.style = {{"waltz", 1.0f}};
+    opt.sampling.guidance = w;
+    auto s = MakeSession(std::move(m), opt);
+    return std::make_pair(s->guidance(), RunStream(*s, audio, {audio.size()}));
+  };
+  const auto [w_default, by_default] = run(guided, kModelDefaultGuidance);
+  EXPECT_EQ(w_default, 2.5f);
+  ExpectSameFrames(by_default, run(plain, 2.5f).second);
+  const auto [w_off, off] = run(guided, 1.0f);  // explicit 1 turns it off
+  EXPECT_EQ(w_off, 1.0f);
+  ExpectSameFrames(off, run(plain, kModelDefaultGuidance).second);
+  int differ = 0;
+  for (size_t i = 0; i < std::min(off.size(), by_default.size()); ++i) {
+    differ += off[i].upper_code != by_default[i].upper_code;
+  }
+  EXPECT_GT(differ, 0);
+  // Bad metadata is refused with the key named.
+  WeightsWriter w = testing::TinyModelWriter(o);
+  w.metadata()["sampling"]["guidance"] = 101.0;
+  const std::string path = ::testing::TempDir() + "/bad_guidance.dncw";
+  ASSERT_TRUE(w.WriteFile(path).ok());
+  absl::StatusOr<std::shared_ptr<const Model>> bad = LoadModel(path);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.status().message().find("sampling.guidance"), std::string::npos);
+}
+
 TEST(Session, StepBatchHandlesSessionsOfDifferentModels) {
   auto model_a = LoadTinyModel();
   testing::TinyModelOptions other;
@@ -643,6 +680,28 @@ TEST(WarpedSession, PeriodLockRepeatsMovementNotStillness) {
   EXPECT_FALSE(PeriodMoved(history, 0, 1, 512));
 }
 
+TEST(WarpedSession, PeriodLockDoesNotRepeatATurn) {
+  // The heading at the start of each step; the lower body's lock is released after a period that turned
+  // the body by more than half a turn (either way), so a repeated turn cannot become an endless spin.
+  std::deque<double> headings;
+  EXPECT_FALSE(PeriodTurned(headings, 4));
+  for (int t = 0; t <= 4; ++t) headings.push_back(0.7 * t);  // 2.8 rad in 4 steps
+  EXPECT_FALSE(PeriodTurned(headings, 4));
+  EXPECT_FALSE(PeriodTurned(headings, 5));  // needs lag + 1 entries
+  headings.push_back(0.7 * 5);              // 2.8 rad over the last 4, 3.5 over the last 5
+  EXPECT_FALSE(PeriodTurned(headings, 4));
+  EXPECT_TRUE(PeriodTurned(headings, 5));
+  EXPECT_FALSE(PeriodTurned(headings, 0));
+  for (double& h : headings) h = -h;  // turning the other way counts the same
+  EXPECT_TRUE(PeriodTurned(headings, 5));
+  headings.push_back(headings.front());  // back where it started 6 steps ago: no net turn
+  EXPECT_FALSE(PeriodTurned(headings, 6));
+  EXPECT_FALSE(PeriodTurned(headings, 6, 0.0));
+  EXPECT_TRUE(PeriodTurned(headings, 1, 1.0));
+  EXPECT_GT(kPeriodLockMaxTurn, 3.14);
+  EXPECT_LT(kPeriodLockMaxTurn, 3.15);
+}
+
 TEST(WarpedSession, PeriodLockDefaultSnapshotAndChanges) {
   testing::TinyModelOptions o;
   o.tempo_reference_bpm = 105.0;
@@ -682,6 +741,7 @@ TEST(WarpedSession, PeriodLockDefaultSnapshotAndChanges) {
   absl::StatusOr<SessionSnapshot> snap = s->Snapshot();
   ASSERT_TRUE(snap.ok());
   ASSERT_GE(snap->code_history.size(), 15u);
+  EXPECT_EQ(snap->heading_history.size(), snap->code_history.size());
   std::vector<float> rest(audio.begin() + part, audio.end());
   const std::vector<PoseFrame> first = RunStream(*s, rest, {1000});
   auto fresh = MakeSession(model, opt);

@@ -124,6 +124,7 @@ WeightsWriter TinyModelWriter(const TinyModelOptions& o) {
     for (const auto& [name, beats] : o.dance_period_beats) meta["time_base"]["dance_period_beats"][name] = beats;
     if (o.period_lock >= 0.0) meta["time_base"]["period_lock"] = o.period_lock;
   }
+  if (o.guidance >= 0.0) meta["sampling"]["guidance"] = o.guidance;
   WeightsWriter w(meta);
   Builder b(&w, o.seed, o.scale);
   b.Random("seq.music_mean", {4 * f}, 0.1f);

@@ -39,6 +39,7 @@ struct TinyModelOptions {
   std::vector<std::pair<std::string, int>> style_beats_per_bar;     // time_base.bar_clock.style_beats_per_bar
   std::vector<std::pair<std::string, double>> dance_period_beats;   // time_base.dance_period_beats
   double period_lock = -1.0;  // >= 0: time_base.period_lock (the sessions' default lock weight)
+  double guidance = -1.0;     // >= 0: sampling.guidance (the sessions' default style guidance)
 };
 
 WeightsWriter TinyModelWriter(const TinyModelOptions& options);
