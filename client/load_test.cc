@@ -60,6 +60,10 @@ absl::StatusOr<LoadReport> RunLoad(const LoadOptions& o, std::shared_ptr<const A
     po.header.set_seed(o.seed + static_cast<uint64_t>(i));
     po.header.set_client_name(absl::StrFormat("load-%d", i));
     po.header.set_omit_rotations(true);
+    if (o.guidance != 0.0f) {  // a Sampling has no field presence: temperature 1 as without one
+      po.header.mutable_sampling()->set_temperature(1.0f);
+      po.header.mutable_sampling()->set_guidance(o.guidance);
+    }
     streams.push_back(std::make_unique<PerformStream>(
         stubs[static_cast<size_t>(i / o.streams_per_channel)].get(),
         std::make_unique<ClipSource>(clip, o.realtime, o.duration_s), po));

@@ -32,6 +32,7 @@ struct LoadOptions {
   double stagger_s = 1.0;             // session starts spread evenly over this window
   bool realtime = true;
   uint64_t seed = 0;
+  float guidance = 0.0f;              // Sampling.guidance of every session (0 = the model's default)
 };
 
 struct LoadReport {

@@ -3,7 +3,7 @@
 //   dance-client --server HOST:P --audio FILE --out DANCE.json [--bvh DANCE.bvh] [--realtime] [--play]
 //   dance-client --server HOST:P --mic --mic-seconds 30 --out DANCE.json
 //   dance-client watch --server HOST:P --session ID [--out DANCE.json] [--frames N]
-//   dance-client load --server HOST:P --audio FILE --streams N --duration S
+//   dance-client load --server HOST:P --audio FILE --streams N --duration S [--guidance W]
 //   dance-client info --server HOST:P          (model info and live sessions)
 // Exit status: 0 on success, 1 on an RPC error (the status is printed), 2 on bad usage.
 #include <algorithm>
@@ -41,7 +41,8 @@ ABSL_FLAG(std::string, style, "", "Style mix: name or name:weight,name:weight.")
 ABSL_FLAG(uint64_t, seed, 0, "Sampling seed.");
 ABSL_FLAG(double, temperature, 1.0, "Sampling temperature (0 = greedy).");
 ABSL_FLAG(int, top_k, 0, "Top-k cut (0 = off).");
-ABSL_FLAG(double, top_p, 1.0, "Nucleus cut (1 = off).");
+ABSL_FLAG(double, top_p, 0.0, "Nucleus cut (1 = off; 0 = the model's default).");
+ABSL_FLAG(double, guidance, 0.0, "Style guidance weight (1 = off; 0 = the model's default). Also for load.");
 ABSL_FLAG(double, period_lock, -1.0, "Period lock weight (0 = off; negative = the model's default).");
 ABSL_FLAG(int, chunk_ms, 40, "Audio per message, ms.");
 ABSL_FLAG(std::string, token, "", "Bearer token (server --auth-token).");
@@ -114,6 +115,7 @@ int Perform() {
   po.header.mutable_sampling()->set_temperature(static_cast<float>(absl::GetFlag(FLAGS_temperature)));
   po.header.mutable_sampling()->set_top_k(absl::GetFlag(FLAGS_top_k));
   po.header.mutable_sampling()->set_top_p(static_cast<float>(absl::GetFlag(FLAGS_top_p)));
+  po.header.mutable_sampling()->set_guidance(static_cast<float>(absl::GetFlag(FLAGS_guidance)));
   if (absl::GetFlag(FLAGS_period_lock) >= 0.0) {
     po.header.mutable_sampling()->set_period_lock(static_cast<float>(absl::GetFlag(FLAGS_period_lock)));
   }
@@ -236,6 +238,7 @@ int Load() {
   o.chunk_ms = absl::GetFlag(FLAGS_chunk_ms);
   o.stagger_s = absl::GetFlag(FLAGS_stagger);
   o.seed = absl::GetFlag(FLAGS_seed);
+  o.guidance = static_cast<float>(absl::GetFlag(FLAGS_guidance));
   auto r = dance::client::RunLoad(o, *clip, std::cerr);
   if (!r.ok()) return Fail(r.status());
   std::cout << absl::StrFormat(
@@ -259,7 +262,8 @@ int Info() {
   std::cout << "model " << info.model_id() << ", latency " << info.latency_ms() << " ms, sessions "
             << info.active_sessions() << "/" << info.max_sessions() << ", styles:";
   for (const auto& s : info.styles()) std::cout << " " << s;
-  std::cout << "\n";
+  std::cout << "\ndefaults: guidance " << info.default_guidance() << ", top_p " << info.default_top_p()
+            << ", period lock " << info.default_period_lock() << "\n";
   grpc::ClientContext ctx2;
   if (!absl::GetFlag(FLAGS_token).empty()) ctx2.AddMetadata("authorization", "Bearer " + absl::GetFlag(FLAGS_token));
   dance::v1::ListSessionsResponse list;

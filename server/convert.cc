@@ -41,7 +41,7 @@ absl::StatusOr<SamplingConfig> SamplingFromProto(const dance::v1::Sampling& s) {
   }
   c.temperature = s.temperature();
   c.top_k = s.top_k();
-  c.top_p = s.top_p() == 0.0f ? 1.0f : s.top_p();
+  c.top_p = s.top_p() == 0.0f ? -1.0f : s.top_p();  // 0: the model's default (negative)
   c.guidance = s.guidance() == 0.0f ? -1.0f : s.guidance();  // 0: the model's default (negative)
   if (s.has_period_lock()) {
     if (!(s.period_lock() >= 0.0f && s.period_lock() <= 100.0f)) {
@@ -131,7 +131,7 @@ absl::Status Number(const json& j, const char* key, T* out) {
 }
 
 absl::Status SamplingJson(const json& j, dance::v1::Sampling* s, bool* any) {
-  float t = 1.0f, p = 1.0f, g = 0.0f;  // guidance absent: 0, the model's default
+  float t = 1.0f, p = 0.0f, g = 0.0f;  // top_p, guidance absent: 0, the model's default
   int k = 0;
   for (const char* key : {"temperature", "top_k", "top_p", "guidance", "period_lock"}) {
     if (j.contains(key)) *any = true;
@@ -200,7 +200,7 @@ nlohmann::json ModelToJson(const ModelDescription& m) {
   return json{{"model_id", m.model_id},       {"latency_ms", m.latency_ms}, {"fps", m.fps},
               {"joint_names", m.joint_names}, {"parents", m.parents},       {"rest_offsets", m.rest_offsets},
               {"styles", m.styles}, {"default_period_lock", m.default_period_lock},
-              {"default_guidance", m.default_guidance}};
+              {"default_guidance", m.default_guidance}, {"default_top_p", m.default_top_p}};
 }
 
 nlohmann::json SummaryToJson(const dance::v1::SessionSummary& s) {

@@ -286,6 +286,7 @@ grpc::ServerUnaryReactor* DanceServiceImpl::GetModelInfo(grpc::CallbackServerCon
   response->set_max_chunk_samples(options_.limits.max_chunk_samples);
   response->set_default_period_lock(m.default_period_lock);
   response->set_default_guidance(m.default_guidance);
+  response->set_default_top_p(m.default_top_p);
   reactor->Finish(grpc::Status::OK);
   return reactor;
 }

@@ -78,6 +78,7 @@ class EngineBackendImpl final : public EngineBackend {
     desc_.styles = model_->styles();
     desc_.default_period_lock = model_->default_period_lock();
     desc_.default_guidance = model_->default_guidance();
+    desc_.default_top_p = model_->default_top_p();
   }
 
   const ModelDescription& Describe() const override { return desc_; }

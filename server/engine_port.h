@@ -33,7 +33,7 @@ inline constexpr int kNumJoints = 24;
 struct SamplingConfig {
   float temperature = 1.0f;  // 0 = greedy
   int top_k = 0;             // 0 = off
-  float top_p = 1.0f;        // 1 = off
+  float top_p = -1.0f;       // 1 = off, negative = the model's default
   float guidance = -1.0f;    // 1 = off, negative = the model's default
   float period_lock = -1.0f; // 0 = off, negative = the model's default
 };
@@ -61,6 +61,7 @@ struct ModelDescription {
   std::vector<std::string> styles;
   float default_period_lock = 0.0f;  // Sampling.period_lock when absent (0 = off)
   float default_guidance = 1.0f;     // Sampling.guidance when 0 (1 = off)
+  float default_top_p = 1.0f;        // Sampling.top_p when 0 (1 = no cut)
 };
 
 struct FrameData {

@@ -44,7 +44,8 @@ std::shared_ptr<const Model> BenchModel() {
 
 // Sessions with enough audio queued for `steps` steps.
 std::vector<std::unique_ptr<Session>> MakeSessions(int n, double seconds, const std::string& style = "",
-                                                  float period_lock = kModelDefaultPeriodLock) {
+                                                  float period_lock = kModelDefaultPeriodLock,
+                                                  float guidance = kModelDefaultGuidance) {
   const std::vector<float> audio = testing::TestAudio(seconds);
   std::vector<std::unique_ptr<Session>> out;
   for (int i = 0; i < n; ++i) {
@@ -52,6 +53,7 @@ std::vector<std::unique_ptr<Session>> MakeSessions(int n, double seconds, const 
     opt.seed = static_cast<uint64_t>(i);
     if (!style.empty() && BenchModel()->StyleIndex(style).ok()) opt.style = {{style, 1.0f}};
     opt.sampling.period_lock = period_lock;
+    opt.sampling.guidance = guidance;
     out.push_back(*Session::Create(BenchModel(), opt));
     (void)out.back()->PushAudio(audio);
   }
@@ -81,6 +83,12 @@ void StepSessions(benchmark::State& state, std::vector<std::unique_ptr<Session>>
 }
 void BM_Step(benchmark::State& state) { StepSessions(state, MakeSessions(static_cast<int>(state.range(0)), 70.0)); }
 BENCHMARK(BM_Step)->Arg(1)->Arg(64)->Arg(256)->Unit(benchmark::kMicrosecond);
+
+// The same with style guidance off (one model pass per step; the shipped model's default is 3: two passes).
+void BM_StepNoGuidance(benchmark::State& state) {
+  StepSessions(state, MakeSessions(static_cast<int>(state.range(0)), 70.0, "", kModelDefaultPeriodLock, 1.0f));
+}
+BENCHMARK(BM_StepNoGuidance)->Arg(1)->Arg(64)->Unit(benchmark::kMicrosecond);
 
 void BM_StepWaltz(benchmark::State& state) {
   StepSessions(state, MakeSessions(static_cast<int>(state.range(0)), 70.0, "waltz",
@@ -147,11 +155,11 @@ void BM_EndOfAudio(benchmark::State& state) {
 BENCHMARK(BM_EndOfAudio)->Arg(24000)->Arg(44100)->Unit(benchmark::kMillisecond);
 
 void PrintMemory() {
-  std::vector<std::unique_ptr<Session>> s = MakeSessions(1, 1.0);
+  std::vector<std::unique_ptr<Session>> s = MakeSessions(1, 1.0, "", kModelDefaultPeriodLock, 1.0f);
   SessionOptions guided;
   guided.sampling.guidance = 2.0f;
   std::unique_ptr<Session> g = *Session::Create(BenchModel(), guided);
-  std::fprintf(stderr, "memory per session: %.1f KB (%.1f KB with guidance)\n", s[0]->StateBytes() / 1024.0,
+  std::fprintf(stderr, "memory per session: %.1f KB without guidance (%.1f KB with)\n", s[0]->StateBytes() / 1024.0,
                g->StateBytes() / 1024.0);
 }
 

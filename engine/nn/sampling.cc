@@ -13,8 +13,9 @@ absl::Status ValidateSamplingOptions(const SamplingOptions& o) {
     return absl::InvalidArgumentError(absl::StrCat("sampling: temperature must be >= 0, got ", o.temperature));
   }
   if (o.top_k < 0) return absl::InvalidArgumentError(absl::StrCat("sampling: top_k must be >= 0, got ", o.top_k));
-  if (!(o.top_p > 0.0f && o.top_p <= 1.0f)) {
-    return absl::InvalidArgumentError(absl::StrCat("sampling: top_p must be in (0, 1], got ", o.top_p));
+  if (!((o.top_p > 0.0f && o.top_p <= 1.0f) || o.top_p < 0.0f) || !std::isfinite(o.top_p)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("sampling: top_p must be in (0, 1] (negative = the model's default), got ", o.top_p));
   }
   if (!(o.guidance <= 100.0f) || !std::isfinite(o.guidance)) {
     return absl::InvalidArgumentError(
@@ -72,7 +73,7 @@ int SampleCode(absl::Span<const float> logits, const SamplingOptions& options, s
   } else {
     for (int i = 0; i < n; ++i) total += p[i];
   }
-  if (options.top_p < 1.0f) {
+  if (options.top_p > 0.0f && options.top_p < 1.0f) {
     const double target = static_cast<double>(options.top_p) * total;
     double cum = 0.0;
     int i = 0;

@@ -30,11 +30,14 @@ namespace dance::engine {
 
 inline constexpr float kModelDefaultPeriodLock = -1.0f;
 inline constexpr float kModelDefaultGuidance = -1.0f;
+inline constexpr float kModelDefaultTopP = -1.0f;
 
 struct SamplingOptions {
   float temperature = 1.0f;  // >= 0; 0 = greedy
   int top_k = 0;             // >= 0; 0 = no top-k cut
-  float top_p = 1.0f;        // (0, 1]; 1 = no nucleus cut
+  // (0, 1]; 1 = no nucleus cut, negative = the model's default (Model::default_top_p; sessions resolve it,
+  // SampleCode treats it as 1).
+  float top_p = kModelDefaultTopP;
   // Classifier-free style guidance weight w (<= 100); 1 = conditional logits only, negative = the model's
   // default (Model::default_guidance). The caller combines the logits (ApplyGuidance).
   float guidance = kModelDefaultGuidance;

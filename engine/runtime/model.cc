@@ -143,6 +143,13 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
       }
       m->default_guidance_ = static_cast<float>(g);
     }
+    if (sm.contains("top_p")) {
+      const double p = sm["top_p"].is_number() ? sm["top_p"].get<double>() : -1.0;
+      if (!(p > 0.0 && p <= 1.0)) {
+        return absl::InvalidArgumentError("weights metadata: sampling.top_p must be a number in (0, 1]");
+      }
+      m->default_top_p_ = static_cast<float>(p);
+    }
   }
   return std::shared_ptr<const Model>(std::move(m));
 }

@@ -69,6 +69,9 @@ class Model {
   // The style guidance weight sessions use when SamplingOptions::guidance is negative (metadata
   // "sampling": {"guidance": W}, 0..100); 1 = off (models without it).
   float default_guidance() const { return default_guidance_; }
+  // The nucleus cut sessions use when SamplingOptions::top_p is negative (metadata "sampling":
+  // {"top_p": P}, (0, 1]); 1 = no cut (models without it).
+  float default_top_p() const { return default_top_p_; }
   // The codebooks with unit-length rows, (K, code_dim): stream 0 upper, 1 lower (cosine similarity of codes).
   const RowMatrix& unit_codebook(int stream) const { return unit_codebook_[stream]; }
   // The header metadata, for tools that copy it (feature config, training info).
@@ -92,6 +95,7 @@ class Model {
   std::vector<double> dance_period_beats_;    // per style row (n_styles); empty = none
   float default_period_lock_ = 0.0f;
   float default_guidance_ = 1.0f;
+  float default_top_p_ = 1.0f;
   std::array<RowMatrix, 2> unit_codebook_;    // upper, lower
 };
 

@@ -251,8 +251,11 @@ void Session::SampleCodes(const float* logits_u, const float* logits_l, const fl
     lu = guided_u_;
     ll = guided_l_;
   }
-  upper_code_ = SampleCode(lu, sampling_, generator_, sampler_);
-  lower_code_ = SampleCode(ll, sampling_, generator_, sampler_);
+  SamplingOptions effective = sampling_;
+  effective.top_p = top_p();
+  effective.guidance = guidance();
+  upper_code_ = SampleCode(lu, effective, generator_, sampler_);
+  lower_code_ = SampleCode(ll, effective, generator_, sampler_);
   code_history_.emplace_back(upper_code_, lower_code_);
   if (code_history_.size() > kMaxCodeHistory) code_history_.pop_front();
 }

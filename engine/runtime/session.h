@@ -166,6 +166,8 @@ class Session {
   }
   // The style guidance weight in effect (SamplingOptions::guidance, or the model's default if negative).
   float guidance() const { return EffectiveGuidance(sampling_); }
+  // The nucleus cut in effect (SamplingOptions::top_p, or the model's default if negative).
+  float top_p() const { return sampling_.top_p < 0.0f ? model_->default_top_p() : sampling_.top_p; }
   // The (upper, lower) codes of the last step (the BOS code K before the first).
   std::pair<int, int> last_codes() const { return {upper_code_, lower_code_}; }
   // Approximate bytes of per-session state (caches, states, buffers).

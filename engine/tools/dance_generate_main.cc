@@ -159,7 +159,7 @@ absl::Status Run(Flags flags) {
   info.extra = {{"style", style_json},
                 {"temperature", flags.sampling.temperature},
                 {"top_k", flags.sampling.top_k},
-                {"top_p", flags.sampling.top_p},
+                {"top_p", s.top_p()},
                 {"guidance", s.guidance()},
                 {"period_lock", s.period_lock()},
                 {"audio_file", flags.audio},

@@ -42,7 +42,7 @@ TEST(Convert, ValidHeaderIsAccepted) {
   ASSERT_TRUE(v.ok()) << v.status();
   EXPECT_EQ(v->config.sample_rate_hz, 44100);
   EXPECT_EQ(v->format, PcmFormat::kS16Le);
-  EXPECT_EQ(v->config.sampling.top_p, 1.0f);
+  EXPECT_LT(v->config.sampling.top_p, 0.0f);  // 0 (unset): the model's default
   EXPECT_LT(v->config.sampling.period_lock, 0.0f);  // absent: the model's default
   auto h = GoodHeader();
   h.mutable_sampling()->set_period_lock(0.0f);  // present and 0: off, not "default"
@@ -57,6 +57,8 @@ TEST(Convert, ValidHeaderIsAccepted) {
   EXPECT_EQ(ValidateHeader(h, Model(), {})->config.sampling.guidance, 1.0f);
   h.mutable_sampling()->set_guidance(3.0f);
   EXPECT_EQ(ValidateHeader(h, Model(), {})->config.sampling.guidance, 3.0f);
+  h.mutable_sampling()->set_top_p(0.9f);
+  EXPECT_EQ(ValidateHeader(h, Model(), {})->config.sampling.top_p, 0.9f);
 }
 
 TEST(Convert, BadHeadersNameTheField) {

@@ -2,7 +2,7 @@
 songs, against the real dances and the baselines (training.eval.evaluate), plus rendered strips.
 
     .venv/bin/python -m training.eval.engine_eval --model models/default.dncw --out-dir training/runs/X/engine
-        [--seed 0] [--temperature 1] [--guidance 1] [--period-lock B]
+        [--seed 0] [--temperature 1] [--guidance W] [--top-p P] [--period-lock B]
 
 Writes <out-dir>/dances/<id>.json (dance-motion/v1 from dance-generate), metrics.md, metrics.json and
 strip_<id>.png / beats_<id>.png for the first two songs. Needs librosa's beat cache (the project .venv).
@@ -24,12 +24,16 @@ REPO = pathlib.Path(__file__).resolve().parents[2]
 
 def generate_song(model: str, mid: str, out: pathlib.Path, seed: int, temperature: float,
                   period_lock: float | None = None, style: str | None = None,
-                  guidance: float = 1.0) -> pathlib.Path:
-  """dance-generate on the song of motion `mid`, in its own style unless `style` is given."""
+                  guidance: float | None = None, top_p: float | None = None) -> pathlib.Path:
+  """dance-generate on the song of motion `mid`, in its own style unless `style` is given; guidance and
+  top_p None = the model's defaults."""
   z = np.load(td.MOTION_CACHE / f"{mid}.npz")
   cmd = [str(dance_generate_bin()), "--audio", str(z["audio_path"]), "--out", str(out), "--model", model,
-         "--seed", str(seed), "--style", style or str(z["style"]), "--temperature", str(temperature),
-         "--guidance", str(guidance), "--quiet"]
+         "--seed", str(seed), "--style", style or str(z["style"]), "--temperature", str(temperature), "--quiet"]
+  if guidance is not None:
+    cmd += ["--guidance", str(guidance)]
+  if top_p is not None:
+    cmd += ["--top-p", str(top_p)]
   if period_lock is not None:  # None: the model's default
     cmd += ["--period-lock", str(period_lock)]
   proc = subprocess.run(cmd, capture_output=True, text=True)
@@ -47,7 +51,9 @@ def main(argv=None) -> None:
   ap.add_argument("--out-dir", required=True)
   ap.add_argument("--seed", type=int, default=0)
   ap.add_argument("--temperature", type=float, default=1.0)
-  ap.add_argument("--guidance", type=float, default=1.0, help="style guidance (dance-generate --guidance)")
+  ap.add_argument("--guidance", type=float, default=None,
+                  help="style guidance (dance-generate --guidance; default: the model's)")
+  ap.add_argument("--top-p", type=float, default=None, help="dance-generate --top-p (default: the model's)")
   ap.add_argument("--period-lock", type=float, default=None,
                   help="dance-generate --period-lock (default: the model's; 0 = off)")
   args = ap.parse_args(argv)
@@ -58,7 +64,7 @@ def main(argv=None) -> None:
   for mid in ids:
     z = np.load(td.MOTION_CACHE / f"{mid}.npz")
     path = generate_song(args.model, mid, out / "dances" / f"{mid}.json", args.seed, args.temperature,
-                         args.period_lock, guidance=args.guidance)
+                         args.period_lock, guidance=args.guidance, top_p=args.top_p)
     d = load_dance(path, audio=str(z["audio_path"]))  # audio_offset_s: the song time of the first frame
     dances.append(Dance(mid, d.positions, d.fps, d.audio_path, d.audio_offset_s, str(z["style"])))
   ev = Evaluator.default()

@@ -41,16 +41,18 @@ def dance_generate_bin() -> pathlib.Path:
 
 
 def generate(model: str, audio: str, seed: int, style: str, workdir: pathlib.Path,
-             temperature: float = 1.0, top_p: float = 1.0, guidance: float = 1.0,
+             temperature: float = 1.0, top_p: float | None = None, guidance: float | None = None,
              period_lock: float | None = None) -> np.ndarray:
-  """Runs dance-generate on `audio`; returns positions (T, 24, 3) at 30 fps."""
+  """Runs dance-generate on `audio`; returns positions (T, 24, 3) at 30 fps. top_p, guidance and period_lock
+  None = the model's defaults."""
   out = workdir / (pathlib.Path(audio).stem + f"_s{seed}.json")
   if out.is_file():  # already danced in this run (same model and settings: the workdir is per run)
     return np.asarray(json.loads(out.read_text())["positions"], dtype=np.float64)
   cmd = [str(dance_generate_bin()), "--audio", audio, "--out", str(out), "--model", model, "--seed", str(seed),
-         "--temperature", str(temperature), "--top-p", str(top_p), "--guidance", str(guidance), "--quiet"]
-  if period_lock is not None:  # None: the model's default
-    cmd += ["--period-lock", str(period_lock)]
+         "--temperature", str(temperature), "--quiet"]
+  for flag, value in (("--top-p", top_p), ("--guidance", guidance), ("--period-lock", period_lock)):
+    if value is not None:  # None: the model's default
+      cmd += [flag, str(value)]
   if style:
     cmd += ["--style", style]
   proc = subprocess.run(cmd, capture_output=True, text=True)
@@ -84,8 +86,9 @@ def main(argv=None) -> None:
   ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
   ap.add_argument("--seconds", type=float, default=60.0)
   ap.add_argument("--temperature", type=float, default=1.0)
-  ap.add_argument("--top-p", type=float, default=1.0)
-  ap.add_argument("--guidance", type=float, default=1.0, help="style guidance (dance-generate --guidance)")
+  ap.add_argument("--top-p", type=float, default=None, help="dance-generate --top-p (default: the model's)")
+  ap.add_argument("--guidance", type=float, default=None,
+                  help="style guidance (dance-generate --guidance; default: the model's)")
   ap.add_argument("--period-lock", type=float, default=None,
                   help="dance-generate --period-lock (default: the model's; 0 = off)")
   ap.add_argument("--out", default=None)

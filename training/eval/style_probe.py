@@ -113,7 +113,8 @@ def main(argv=None) -> None:
   ap.add_argument("--model", default=str(REPO / "models" / "default.dncw"))
   ap.add_argument("--seed", type=int, default=0)
   ap.add_argument("--temperature", type=float, default=1.0)
-  ap.add_argument("--guidance", type=float, default=1.0)
+  ap.add_argument("--guidance", type=float, default=None, help="default: the model's")
+  ap.add_argument("--top-p", type=float, default=None, help="default: the model's")
   ap.add_argument("--out-dir", default=None, help="--prompts: where the dances and probe.json go")
   args = ap.parse_args(argv)
   probe = default_probe()
@@ -142,13 +143,14 @@ def main(argv=None) -> None:
       for style in STYLES:
         path = out / f"{d.name}__{style}.json"
         generate_song(args.model, d.name, path, args.seed, args.temperature, style=style,
-                      guidance=args.guidance)
+                      guidance=args.guidance, top_p=args.top_p)
         g = load_dance(path, audio=audio)
         g.style = style
         ds.append(g)
     x, y, _ = dance_segments(ds)
-    results["prompted"] = report(f"prompted styles (guidance {args.guidance}, temperature "
-                                 f"{args.temperature}, seed {args.seed})", y, probe.predict(x))
+    results["prompted"] = report(f"prompted styles (guidance {args.guidance or 'default'}, top_p "
+                                 f"{args.top_p or 'default'}, temperature {args.temperature}, seed {args.seed})",
+                                 y, probe.predict(x))
     (out / "probe.json").write_text(json.dumps(results, indent=1))
 
 

@@ -84,7 +84,7 @@ int ReferenceSample(const std::vector<float>& logits, const SamplingOptions& o, 
   } else {
     for (int i = 0; i < n; ++i) total += p[i];  // index order when nothing is cut
   }
-  if (o.top_p < 1.0f) {
+  if (o.top_p > 0.0f && o.top_p < 1.0f) {  // negative: the model's default, resolved by sessions
     double cum = 0.0;
     int i = 0;
     while (i < keep && cum < o.top_p * total) cum += p[order[i++]];
@@ -136,6 +136,8 @@ TEST(Sampling, ValidationNamesTheBadField) {
   EXPECT_FALSE(ValidateSamplingOptions({.top_p = 1.5f}).ok());
   EXPECT_TRUE(ValidateSamplingOptions({.guidance = kModelDefaultGuidance}).ok());  // the model's default
   EXPECT_FALSE(ValidateSamplingOptions({.guidance = 100.5f}).ok());
+  EXPECT_TRUE(ValidateSamplingOptions({.top_p = kModelDefaultTopP}).ok());
+  EXPECT_FALSE(ValidateSamplingOptions({.top_p = std::nanf("")}).ok());
   EXPECT_FALSE(ValidateSamplingOptions({.guidance = std::nanf("")}).ok());
   EXPECT_NE(ValidateSamplingOptions({.temperature = -1.0f}).message().find("temperature"), std::string::npos);
 }

@@ -194,7 +194,7 @@ TEST(Session, StepBatchMatchesSteppingAlone) {
   }
 }
 
-TEST(Session, GuidanceDefaultsToTheModels) {
+TEST(Session, GuidanceAndTopPDefaultToTheModels) {
   // Negative SamplingOptions::guidance = the model's metadata "sampling": {"guidance": W} (1 without it).
   testing::TinyModelOptions o;
   auto plain = LoadTinyModel(o);
@@ -221,14 +221,32 @@ TEST(Session, GuidanceDefaultsToTheModels) {
     differ += off[i].upper_code != by_default[i].upper_code;
   }
   EXPECT_GT(differ, 0);
+  // The nucleus cut likewise: metadata "sampling": {"top_p": P}, negative = the model's.
+  o.guidance = -1.0;
+  o.top_p = 0.5;
+  auto cut = LoadTinyModel(o);
+  EXPECT_EQ(plain->default_top_p(), 1.0f);
+  EXPECT_EQ(cut->default_top_p(), 0.5f);
+  auto run_p = [&](std::shared_ptr<const Model> m, float p) {
+    SessionOptions opt = Opts(4);
+    opt.sampling.top_p = p;
+    auto s = MakeSession(std::move(m), opt);
+    return std::make_pair(s->top_p(), RunStream(*s, audio, {audio.size()}));
+  };
+  const auto [p_default, cut_default] = run_p(cut, kModelDefaultTopP);
+  EXPECT_EQ(p_default, 0.5f);
+  ExpectSameFrames(cut_default, run_p(plain, 0.5f).second);
+  ExpectSameFrames(run_p(cut, 1.0f).second, run_p(plain, kModelDefaultTopP).second);
   // Bad metadata is refused with the key named.
-  WeightsWriter w = testing::TinyModelWriter(o);
-  w.metadata()["sampling"]["guidance"] = 101.0;
-  const std::string path = ::testing::TempDir() + "/bad_guidance.dncw";
-  ASSERT_TRUE(w.WriteFile(path).ok());
-  absl::StatusOr<std::shared_ptr<const Model>> bad = LoadModel(path);
-  ASSERT_FALSE(bad.ok());
-  EXPECT_NE(bad.status().message().find("sampling.guidance"), std::string::npos);
+  for (const auto& [key, value] : std::vector<std::pair<std::string, double>>{{"guidance", 101.0}, {"top_p", 0.0}}) {
+    WeightsWriter w = testing::TinyModelWriter(o);
+    w.metadata()["sampling"][key] = value;
+    const std::string path = ::testing::TempDir() + "/bad_sampling.dncw";
+    ASSERT_TRUE(w.WriteFile(path).ok());
+    absl::StatusOr<std::shared_ptr<const Model>> bad = LoadModel(path);
+    ASSERT_FALSE(bad.ok()) << key;
+    EXPECT_NE(bad.status().message().find("sampling." + key), std::string::npos);
+  }
 }
 
 TEST(Session, StepBatchHandlesSessionsOfDifferentModels) {

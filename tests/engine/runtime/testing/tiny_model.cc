@@ -125,6 +125,7 @@ WeightsWriter TinyModelWriter(const TinyModelOptions& o) {
     if (o.period_lock >= 0.0) meta["time_base"]["period_lock"] = o.period_lock;
   }
   if (o.guidance >= 0.0) meta["sampling"]["guidance"] = o.guidance;
+  if (o.top_p > 0.0) meta["sampling"]["top_p"] = o.top_p;
   WeightsWriter w(meta);
   Builder b(&w, o.seed, o.scale);
   b.Random("seq.music_mean", {4 * f}, 0.1f);

@@ -40,6 +40,7 @@ struct TinyModelOptions {
   std::vector<std::pair<std::string, double>> dance_period_beats;   // time_base.dance_period_beats
   double period_lock = -1.0;  // >= 0: time_base.period_lock (the sessions' default lock weight)
   double guidance = -1.0;     // >= 0: sampling.guidance (the sessions' default style guidance)
+  double top_p = -1.0;        // > 0: sampling.top_p (the sessions' default nucleus cut)
 };
 
 WeightsWriter TinyModelWriter(const TinyModelOptions& options);
