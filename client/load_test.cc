@@ -60,6 +60,11 @@ absl::StatusOr<LoadReport> RunLoad(const LoadOptions& o, std::shared_ptr<const A
     po.header.set_seed(o.seed + static_cast<uint64_t>(i));
     po.header.set_client_name(absl::StrFormat("load-%d", i));
     po.header.set_omit_rotations(true);
+    for (const auto& [name, weight] : o.style) {
+      dance::v1::StyleWeight* w = po.header.add_style();
+      w->set_name(name);
+      w->set_weight(weight);
+    }
     if (o.guidance != 0.0f) {  // a Sampling has no field presence: temperature 1 as without one
       po.header.mutable_sampling()->set_temperature(1.0f);
       po.header.mutable_sampling()->set_guidance(o.guidance);

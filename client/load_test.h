@@ -13,6 +13,8 @@
 #include <memory>
 #include <ostream>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <grpcpp/grpcpp.h>
 
@@ -33,6 +35,7 @@ struct LoadOptions {
   bool realtime = true;
   uint64_t seed = 0;
   float guidance = 0.0f;              // Sampling.guidance of every session (0 = the model's default)
+  std::vector<std::pair<std::string, float>> style;  // every session's style mix (empty = "none")
 };
 
 struct LoadReport {

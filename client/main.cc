@@ -3,7 +3,7 @@
 //   dance-client --server HOST:P --audio FILE --out DANCE.json [--bvh DANCE.bvh] [--realtime] [--play]
 //   dance-client --server HOST:P --mic --mic-seconds 30 --out DANCE.json
 //   dance-client watch --server HOST:P --session ID [--out DANCE.json] [--frames N]
-//   dance-client load --server HOST:P --audio FILE --streams N --duration S [--guidance W]
+//   dance-client load --server HOST:P --audio FILE --streams N --duration S [--style S] [--guidance W]
 //   dance-client info --server HOST:P          (model info and live sessions)
 // Exit status: 0 on success, 1 on an RPC error (the status is printed), 2 on bad usage.
 #include <algorithm>
@@ -239,6 +239,9 @@ int Load() {
   o.stagger_s = absl::GetFlag(FLAGS_stagger);
   o.seed = absl::GetFlag(FLAGS_seed);
   o.guidance = static_cast<float>(absl::GetFlag(FLAGS_guidance));
+  dance::v1::StreamHeader styled;
+  ParseStyle(absl::GetFlag(FLAGS_style), &styled);
+  for (const auto& w : styled.style()) o.style.emplace_back(w.name(), w.weight());
   auto r = dance::client::RunLoad(o, *clip, std::cerr);
   if (!r.ok()) return Fail(r.status());
   std::cout << absl::StrFormat(

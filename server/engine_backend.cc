@@ -54,8 +54,11 @@ class EngineSessionStream final : public EngineStream {
   absl::Status SetStyle(const StyleMix& style) override { return session_->SetStyle(style); }
   absl::Status SetSampling(const SamplingConfig& sampling) override {
     engine::SamplingOptions o = ToEngine(sampling);
-    // A Control whose sampling has no period_lock keeps the lock in effect ("unset fields keep their value").
+    // A Control whose sampling has no period_lock, guidance 0 or top_p 0 keeps the value in effect ("unset
+    // fields keep their value"); in a StreamHeader the same mean the model's defaults.
     if (o.period_lock < 0.0f) o.period_lock = session_->period_lock();
+    if (o.guidance < 0.0f) o.guidance = session_->guidance();
+    if (o.top_p < 0.0f) o.top_p = session_->top_p();
     return session_->SetSampling(o);
   }
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import fnmatch
 import json
+import os
 import struct
 import zlib
 from collections.abc import Mapping
@@ -243,7 +244,9 @@ def set_metadata(path: str, assignments: Mapping[str, object]) -> dict:
       if not isinstance(node, dict):
         raise ValueError(f"metadata {key}: {k} is not an object")
     node[leaf] = value
-  write_dncw(path, tensors, meta, {e["name"]: e["dtype"] for e in header["tensors"]})
+  tmp = f"{path}.tmp"
+  write_dncw(tmp, tensors, meta, {e["name"]: e["dtype"] for e in header["tensors"]})
+  os.replace(tmp, path)  # a failed write leaves the original file intact
   return meta
 
 

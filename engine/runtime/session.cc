@@ -81,6 +81,15 @@ absl::Status Session::ApplyStyle(const std::vector<std::pair<std::string, float>
   }
   if (!(total > 0.0)) return absl::InvalidArgumentError("style weights sum to 0");
   for (auto& r : rows) r.second = static_cast<float>(r.second / total);
+  const bool none = std::all_of(rows.begin(), rows.end(), [&](const auto& r) {
+    return r.first == model_->config().n_styles || r.second == 0.0f;
+  });
+  if (style_is_none_ && !none && guidance() != 1.0f) {
+    // Guidance was skipped while the style was "none" (the conditional lane was the unconditional one):
+    // the unconditional lane continues from the conditional lane's state, which is exactly its history.
+    uncond_ = cond_;
+  }
+  style_is_none_ = none;
   model_->sequence().SetStyle(model_->sequence().StyleVector(rows), &cond_);
   style_ = style;
   if (warped()) {
@@ -443,6 +452,10 @@ absl::Status Session::Restore(const SessionSnapshot& s) {
   DANCE_RETURN_IF_ERROR(ValidateSamplingOptions(s.sampling));
   DANCE_RETURN_IF_ERROR(front_end_->Restore(s.front_end));
   style_ = s.style;
+  style_is_none_ = std::all_of(style_.begin(), style_.end(), [&](const auto& e) {
+    const absl::StatusOr<int> row = model_->StyleIndex(e.first);
+    return e.second == 0.0f || (row.ok() && *row == model_->config().n_styles);
+  });
   sampling_ = s.sampling;
   generator_ = s.generator;
   pending_features_ = s.pending_features;
@@ -482,6 +495,7 @@ void Session::Reset() {
   const SequenceModel& seq = model_->sequence();
   cond_ = seq.NewState();
   uncond_ = seq.NewState();
+  style_is_none_ = true;  // both fresh lanes have style "none"
   ApplyStyle(options_.style).IgnoreError();  // validated by Create
   upper_code_ = lower_code_ = model_->config().codebook_size;
   code_history_.clear();

@@ -184,7 +184,9 @@ class Session {
   float EffectiveGuidance(const SamplingOptions& s) const {
     return s.guidance < 0.0f ? model_->default_guidance() : s.guidance;
   }
-  bool uses_guidance() const { return guidance() != 1.0f; }
+  // Guidance needs the unconditional lane only when the style is not "none" (with style "none" both lanes
+  // are the same computation and lu + w (lc - lu) = lc).
+  bool uses_guidance() const { return guidance() != 1.0f && !style_is_none_; }
   // Pointers to this step's music token (4F) and PRE (P), valid until the next PushAudio.
   void StepInputs(const float** music, const float** pre);
   // After the model ran: sample this step's codes from the lane logits (guidance and the period lock
@@ -210,6 +212,7 @@ class Session {
   SessionOptions options_;
   SamplingOptions sampling_;
   std::vector<std::pair<std::string, float>> style_;
+  bool style_is_none_ = true;  // every weighted row of style_ is "none"
   std::mt19937_64 generator_;
   std::unique_ptr<audio::AudioFrontEnd> front_end_;
   audio::FeatureFrames popped_;            // scratch

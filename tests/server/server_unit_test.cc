@@ -112,6 +112,12 @@ TEST(Convert, JsonStartAndControl) {
   EXPECT_EQ(h->style(0).name(), "popping");
   EXPECT_FLOAT_EQ(h->sampling().temperature(), 0.5f);
   EXPECT_FALSE(h->sampling().has_period_lock());  // absent: the model's default
+  EXPECT_EQ(h->sampling().guidance(), 0.0f);       // absent: 0, the model's default
+  EXPECT_EQ(h->sampling().top_p(), 0.0f);
+  h = HeaderFromJson(nlohmann::json::parse(R"({"type":"start","sample_rate":48000,"guidance":1,"top_p":0.9})"));
+  ASSERT_TRUE(h.ok());
+  EXPECT_EQ(h->sampling().guidance(), 1.0f);
+  EXPECT_FLOAT_EQ(h->sampling().top_p(), 0.9f);
   h = HeaderFromJson(nlohmann::json::parse(R"({"type":"start","sample_rate":48000,"period_lock":0})"));
   ASSERT_TRUE(h.ok());
   ASSERT_TRUE(h->sampling().has_period_lock());
@@ -121,6 +127,12 @@ TEST(Convert, JsonStartAndControl) {
   ASSERT_TRUE(c.ok());
   EXPECT_EQ(c->style(0).weight(), 2.0f);
   EXPECT_FALSE(c->has_sampling());
+  ModelDescription m = Model();
+  m.default_guidance = 3.0f;
+  m.default_top_p = 0.9f;
+  const nlohmann::json mj = ModelToJson(m);
+  EXPECT_EQ(mj["default_guidance"].get<float>(), 3.0f);
+  EXPECT_FLOAT_EQ(mj["default_top_p"].get<float>(), 0.9f);
 }
 
 TEST(Convert, FrameJsonHasTheDocumentedFields) {

@@ -720,6 +720,119 @@ TEST(WarpedSession, PeriodLockDoesNotRepeatATurn) {
   EXPECT_LT(kPeriodLockMaxTurn, 3.15);
 }
 
+TEST(WarpedSession, PeriodLockReleasesTheLowerBodyAfterATurn) {
+  // Waltz: 3 beats at 90 BPM = 15 steps = 60 frames. A lower decoder whose yaw rate averages 0.1 rad per
+  // frame turns ~6 rad per period, more than half a turn: the lower body's lock is released (else it would
+  // repeat the turn for ever) while the upper body's still repeats its period.
+  testing::TinyModelOptions o;
+  o.tempo_reference_bpm = 105.0;
+  o.style_reference_bpm = {{"waltz", 90.0}};
+  o.dance_period_beats = {{"waltz", 3.0}};
+  o.yaw_rate_mean = 0.1;
+  auto spinning = LoadTinyModel(o);
+  const std::vector<float> audio = testing::ClickAudio(12.0, 100.0);
+  SamplingOptions sampling = Sampling(1.0f);
+  sampling.period_lock = 100.0f;
+  SessionOptions opt = Opts(5, sampling);
+  opt.style = {{"waltz", 1.0f}};
+  auto s = MakeSession(spinning, opt);
+  ASSERT_TRUE(s->PushAudio(absl::MakeConstSpan(audio)).ok());
+  s->EndOfAudio();
+  std::vector<std::pair<int, int>> codes;
+  while (s->StepsReady() > 0) {
+    ASSERT_TRUE(s->Step().ok());
+    codes.push_back(s->last_codes());
+  }
+  int same_upper = 0, same_lower = 0, n = 0;
+  for (size_t t = 30; t < codes.size(); ++t, ++n) {
+    same_upper += codes[t].first == codes[t - 15].first;
+    same_lower += codes[t].second == codes[t - 15].second;
+  }
+  ASSERT_GT(n, 30);
+  EXPECT_GT(same_upper, 0.95 * n);
+  EXPECT_LT(same_lower, 0.5 * n);
+  // The heading history is part of the snapshot: restored mid-stream, the session continues exactly (without
+  // it the guard would not fire for a period and the lower codes would lock).
+  auto a = MakeSession(spinning, opt);
+  const size_t part = audio.size() / 2 + 77;
+  ASSERT_TRUE(a->PushAudio(absl::MakeConstSpan(audio.data(), part)).ok());
+  DrainSteps(*a);
+  absl::StatusOr<SessionSnapshot> snap = a->Snapshot();
+  ASSERT_TRUE(snap.ok());
+  ASSERT_GE(snap->heading_history.size(), 16u);
+  std::vector<float> rest(audio.begin() + part, audio.end());
+  const std::vector<PoseFrame> first = RunStream(*a, rest, {1000});
+  auto b = MakeSession(spinning, opt);
+  ASSERT_TRUE(b->Restore(*snap).ok());
+  ExpectSameFrames(first, RunStream(*b, rest, {2500}));
+  SessionSnapshot forgetful = *snap;
+  forgetful.heading_history.clear();
+  auto c = MakeSession(spinning, opt);
+  ASSERT_TRUE(c->Restore(forgetful).ok());
+  const std::vector<PoseFrame> other = RunStream(*c, rest, {2500});
+  ASSERT_EQ(other.size(), first.size());
+  int differ = 0;
+  for (size_t i = 0; i < first.size(); ++i) differ += first[i].lower_code != other[i].lower_code;
+  EXPECT_GT(differ, 0);
+}
+
+TEST(Session, GuidanceIsSkippedForStyleNoneAndResumesExactly) {
+  // Style "none": both lanes would be the same computation, so guidance costs nothing and changes nothing.
+  testing::TinyModelOptions o;
+  o.guidance = 3.0;
+  auto model = LoadTinyModel(o);
+  const std::vector<float> audio = TestAudio(3.0);
+  auto run = [&](float w) {
+    SessionOptions opt = Opts(6);
+    opt.sampling.guidance = w;
+    auto s = MakeSession(model, opt);
+    const int64_t bytes_before = s->StateBytes();
+    auto frames = RunStream(*s, audio, {audio.size()});
+    return std::make_tuple(s->guidance(), bytes_before, frames);
+  };
+  const auto [w3, bytes3, none3] = run(kModelDefaultGuidance);
+  const auto [w1, bytes1, none1] = run(1.0f);
+  EXPECT_EQ(w3, 3.0f);
+  EXPECT_EQ(w1, 1.0f);
+  EXPECT_EQ(bytes3, bytes1);  // no unconditional lane kept
+  ExpectSameFrames(none3, none1, 0.0f);
+  // Switching from "none" to a style with guidance on starts the unconditional lane from the conditional
+  // one (which was the "none" lane): the same as turning guidance on at that moment.
+  auto switched = [&](bool guidance_from_start) {
+    SessionOptions opt = Opts(6);
+    opt.sampling.guidance = guidance_from_start ? kModelDefaultGuidance : 1.0f;
+    auto s = MakeSession(model, opt);
+    const size_t part = audio.size() / 2;
+    EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data(), part)).ok());
+    DrainSteps(*s);
+    EXPECT_TRUE(s->SetStyle({{"waltz", 1.0f}}).ok());
+    SamplingOptions on = opt.sampling;
+    on.guidance = kModelDefaultGuidance;  // the model's 3
+    EXPECT_TRUE(s->SetSampling(on).ok());
+    EXPECT_EQ(s->guidance(), 3.0f);
+    std::vector<float> rest(audio.begin() + part, audio.end());
+    return RunStream(*s, rest, {rest.size()});
+  };
+  const std::vector<PoseFrame> a = switched(true), b = switched(false);
+  ExpectSameFrames(a, b, 0.0f);
+  // And the guided continuation differs from an unguided one.
+  SessionOptions opt = Opts(6);
+  auto u = MakeSession(model, opt);
+  const size_t part = audio.size() / 2;
+  ASSERT_TRUE(u->PushAudio(absl::MakeConstSpan(audio.data(), part)).ok());
+  DrainSteps(*u);
+  ASSERT_TRUE(u->SetStyle({{"waltz", 1.0f}}).ok());
+  SamplingOptions off = opt.sampling;
+  off.guidance = 1.0f;
+  ASSERT_TRUE(u->SetSampling(off).ok());
+  std::vector<float> rest(audio.begin() + part, audio.end());
+  const std::vector<PoseFrame> unguided = RunStream(*u, rest, {rest.size()});
+  ASSERT_EQ(unguided.size(), a.size());
+  int differ = 0;
+  for (size_t i = 0; i < a.size(); ++i) differ += a[i].upper_code != unguided[i].upper_code;
+  EXPECT_GT(differ, 0);
+}
+
 TEST(WarpedSession, PeriodLockDefaultSnapshotAndChanges) {
   testing::TinyModelOptions o;
   o.tempo_reference_bpm = 105.0;

@@ -25,13 +25,16 @@ constexpr float kOffsets[24][3] = {
 class Builder {
  public:
   Builder(WeightsWriter* w, uint64_t seed, float scale) : w_(w), gen_(seed), scale_(scale) {}
-  void Random(const std::string& name, std::vector<int64_t> shape, float scale = -1.0f, float offset = 0.0f) {
+  // `overrides` replace single values after the draws (so the other tensors' draws do not change).
+  void Random(const std::string& name, std::vector<int64_t> shape, float scale = -1.0f, float offset = 0.0f,
+              const std::vector<std::pair<int, float>>& overrides = {}) {
     int64_t n = 1;
     for (int64_t d : shape) n *= d;
     std::uniform_real_distribution<float> u(-1.0f, 1.0f);
     const float s = scale < 0 ? scale_ : scale;
     std::vector<float> v(n);
     for (float& x : v) x = offset + s * u(gen_);
+    for (const auto& [i, value] : overrides) v[i] = value;
     w_->Add(name, shape, v);
   }
   void Const(const std::string& name, std::vector<int64_t> shape, float value) {
@@ -186,7 +189,9 @@ WeightsWriter TinyModelWriter(const TinyModelOptions& o) {
       b.Random(absl::StrCat(pre, ".decoder.convs.", c, ".weight"), {out_ch, in_ch, ks}, scale);
       b.Random(absl::StrCat(pre, ".decoder.convs.", c, ".bias"), {out_ch}, 0.1f);
     }
-    b.Random(pre + ".pose_mean", {out}, 0.1f);
+    std::vector<std::pair<int, float>> overrides;
+    if (i == 1 && o.yaw_rate_mean != 0.0) overrides.emplace_back(29, static_cast<float>(o.yaw_rate_mean));
+    b.Random(pre + ".pose_mean", {out}, 0.1f, 0.0f, overrides);
     b.Const(pre + ".pose_std", {out}, 0.05f);
   }
   return w;

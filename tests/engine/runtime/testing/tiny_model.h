@@ -41,6 +41,7 @@ struct TinyModelOptions {
   double period_lock = -1.0;  // >= 0: time_base.period_lock (the sessions' default lock weight)
   double guidance = -1.0;     // >= 0: sampling.guidance (the sessions' default style guidance)
   double top_p = -1.0;        // > 0: sampling.top_p (the sessions' default nucleus cut)
+  double yaw_rate_mean = 0.0; // != 0: the lower decoder's mean yaw rate (radians per frame, channel 29)
 };
 
 WeightsWriter TinyModelWriter(const TinyModelOptions& options);
