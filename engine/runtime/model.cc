@@ -136,20 +136,18 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
   if (m->metadata_.contains("sampling")) {
     const nlohmann::json& sm = m->metadata_["sampling"];
     if (!sm.is_object()) return absl::InvalidArgumentError("weights metadata: sampling must be an object");
-    if (sm.contains("guidance")) {
-      const double g = sm["guidance"].is_number() ? sm["guidance"].get<double>() : -1.0;
-      if (!(g >= 0.0 && g <= 100.0)) {
-        return absl::InvalidArgumentError("weights metadata: sampling.guidance must be a number in 0..100");
+    // Each key optional; a present one must be a number with lo < x <= hi (lo itself allowed if closed).
+    auto read = [&](const char* key, double lo, bool closed, double hi, const char* range, float* out) {
+      if (!sm.contains(key)) return absl::OkStatus();
+      const double v = sm[key].is_number() ? sm[key].get<double>() : std::nan("");
+      if (!((v > lo || (closed && v == lo)) && v <= hi)) {
+        return absl::InvalidArgumentError(absl::StrCat("weights metadata: sampling.", key, " must be a number in ", range));
       }
-      m->default_guidance_ = static_cast<float>(g);
-    }
-    if (sm.contains("top_p")) {
-      const double p = sm["top_p"].is_number() ? sm["top_p"].get<double>() : -1.0;
-      if (!(p > 0.0 && p <= 1.0)) {
-        return absl::InvalidArgumentError("weights metadata: sampling.top_p must be a number in (0, 1]");
-      }
-      m->default_top_p_ = static_cast<float>(p);
-    }
+      *out = static_cast<float>(v);
+      return absl::OkStatus();
+    };
+    DANCE_RETURN_IF_ERROR(read("guidance", 0.0, true, 100.0, "0..100", &m->default_guidance_));
+    DANCE_RETURN_IF_ERROR(read("top_p", 0.0, false, 1.0, "(0, 1]", &m->default_top_p_));
   }
   return std::shared_ptr<const Model>(std::move(m));
 }

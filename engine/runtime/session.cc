@@ -81,9 +81,7 @@ absl::Status Session::ApplyStyle(const std::vector<std::pair<std::string, float>
   }
   if (!(total > 0.0)) return absl::InvalidArgumentError("style weights sum to 0");
   for (auto& r : rows) r.second = static_cast<float>(r.second / total);
-  const bool none = std::all_of(rows.begin(), rows.end(), [&](const auto& r) {
-    return r.first == model_->config().n_styles || r.second == 0.0f;
-  });
+  const bool none = StyleIsNone(style);
   if (style_is_none_ && !none && guidance() != 1.0f) {
     // Guidance was skipped while the style was "none" (the conditional lane was the unconditional one):
     // the unconditional lane continues from the conditional lane's state, which is exactly its history.
@@ -111,6 +109,13 @@ absl::Status Session::ApplyStyle(const std::vector<std::pair<std::string, float>
                     model_->config().frames_per_step;
   }
   return absl::OkStatus();
+}
+
+bool Session::StyleIsNone(const std::vector<std::pair<std::string, float>>& style) const {
+  return std::all_of(style.begin(), style.end(), [&](const auto& e) {
+    const absl::StatusOr<int> row = model_->StyleIndex(e.first);
+    return e.second == 0.0f || (row.ok() && *row == model_->config().n_styles);
+  });
 }
 
 absl::Status Session::SetStyle(const std::vector<std::pair<std::string, float>>& style) { return ApplyStyle(style); }
@@ -260,9 +265,8 @@ void Session::SampleCodes(const float* logits_u, const float* logits_l, const fl
     lu = guided_u_;
     ll = guided_l_;
   }
-  SamplingOptions effective = sampling_;
+  SamplingOptions effective = sampling_;  // SampleCode reads temperature, top-k and top-p
   effective.top_p = top_p();
-  effective.guidance = guidance();
   upper_code_ = SampleCode(lu, effective, generator_, sampler_);
   lower_code_ = SampleCode(ll, effective, generator_, sampler_);
   code_history_.emplace_back(upper_code_, lower_code_);
@@ -452,10 +456,7 @@ absl::Status Session::Restore(const SessionSnapshot& s) {
   DANCE_RETURN_IF_ERROR(ValidateSamplingOptions(s.sampling));
   DANCE_RETURN_IF_ERROR(front_end_->Restore(s.front_end));
   style_ = s.style;
-  style_is_none_ = std::all_of(style_.begin(), style_.end(), [&](const auto& e) {
-    const absl::StatusOr<int> row = model_->StyleIndex(e.first);
-    return e.second == 0.0f || (row.ok() && *row == model_->config().n_styles);
-  });
+  style_is_none_ = StyleIsNone(style_);
   sampling_ = s.sampling;
   generator_ = s.generator;
   pending_features_ = s.pending_features;

@@ -187,6 +187,8 @@ class Session {
   // Guidance needs the unconditional lane only when the style is not "none" (with style "none" both lanes
   // are the same computation and lu + w (lc - lu) = lc).
   bool uses_guidance() const { return guidance() != 1.0f && !style_is_none_; }
+  // Whether every entry of a (validated) style mix with a weight is "none" (an empty mix is "none").
+  bool StyleIsNone(const std::vector<std::pair<std::string, float>>& style) const;
   // Pointers to this step's music token (4F) and PRE (P), valid until the next PushAudio.
   void StepInputs(const float** music, const float** pre);
   // After the model ran: sample this step's codes from the lane logits (guidance and the period lock

@@ -69,6 +69,15 @@ std::vector<PoseFrame> RunStream(Session& s, const std::vector<float>& audio, co
   return out;
 }
 
+// Frames (of the first min(size) of each) whose upper (stream 0) or lower (1) codes differ.
+int CodesDiffer(const std::vector<PoseFrame>& a, const std::vector<PoseFrame>& b, int stream) {
+  int n = 0;
+  for (size_t i = 0; i < std::min(a.size(), b.size()); ++i) {
+    n += stream == 0 ? a[i].upper_code != b[i].upper_code : a[i].lower_code != b[i].lower_code;
+  }
+  return n;
+}
+
 void ExpectSameFrames(const std::vector<PoseFrame>& a, const std::vector<PoseFrame>& b, float tol = 0.0f) {
   ASSERT_EQ(a.size(), b.size());
   for (size_t i = 0; i < a.size(); ++i) {
@@ -216,11 +225,7 @@ TEST(Session, GuidanceAndTopPDefaultToTheModels) {
   const auto [w_off, off] = run(guided, 1.0f);  // explicit 1 turns it off
   EXPECT_EQ(w_off, 1.0f);
   ExpectSameFrames(off, run(plain, kModelDefaultGuidance).second);
-  int differ = 0;
-  for (size_t i = 0; i < std::min(off.size(), by_default.size()); ++i) {
-    differ += off[i].upper_code != by_default[i].upper_code;
-  }
-  EXPECT_GT(differ, 0);
+  EXPECT_GT(CodesDiffer(off, by_default, 0), 0);
   // The nucleus cut likewise: metadata "sampling": {"top_p": P}, negative = the model's.
   o.guidance = -1.0;
   o.top_p = 0.5;
@@ -771,9 +776,7 @@ TEST(WarpedSession, PeriodLockReleasesTheLowerBodyAfterATurn) {
   ASSERT_TRUE(c->Restore(forgetful).ok());
   const std::vector<PoseFrame> other = RunStream(*c, rest, {2500});
   ASSERT_EQ(other.size(), first.size());
-  int differ = 0;
-  for (size_t i = 0; i < first.size(); ++i) differ += first[i].lower_code != other[i].lower_code;
-  EXPECT_GT(differ, 0);
+  EXPECT_GT(CodesDiffer(first, other, 1), 0);
 }
 
 TEST(Session, GuidanceIsSkippedForStyleNoneAndResumesExactly) {
@@ -828,9 +831,7 @@ TEST(Session, GuidanceIsSkippedForStyleNoneAndResumesExactly) {
   std::vector<float> rest(audio.begin() + part, audio.end());
   const std::vector<PoseFrame> unguided = RunStream(*u, rest, {rest.size()});
   ASSERT_EQ(unguided.size(), a.size());
-  int differ = 0;
-  for (size_t i = 0; i < a.size(); ++i) differ += a[i].upper_code != unguided[i].upper_code;
-  EXPECT_GT(differ, 0);
+  EXPECT_GT(CodesDiffer(a, unguided, 0), 0);
 }
 
 TEST(WarpedSession, PeriodLockDefaultSnapshotAndChanges) {
@@ -859,9 +860,7 @@ TEST(WarpedSession, PeriodLockDefaultSnapshotAndChanges) {
   const std::vector<PoseFrame> off = run(model, 0.0f).second;
   ExpectSameFrames(off, run(no_default, kModelDefaultPeriodLock).second);
   ASSERT_EQ(off.size(), by_default.size());
-  int differ = 0;
-  for (size_t i = 0; i < off.size(); ++i) differ += off[i].upper_code != by_default[i].upper_code;
-  EXPECT_GT(differ, static_cast<int>(off.size()) / 3);  // the lock changes the dance
+  EXPECT_GT(CodesDiffer(off, by_default, 0), static_cast<int>(off.size()) / 3);  // the lock changes the dance
   // A snapshot carries the code history: restored, a locked session continues exactly.
   SessionOptions opt = Opts(9, Sampling(1.0f));
   opt.style = {{"waltz", 1.0f}};
