@@ -202,7 +202,41 @@ void BeatTracker::Update(float onset, BeatTrackerOutput* out) {
     if (ratio > kNearLo * (1.0 + 1e-9) && ratio < kNearHi * (1.0 - 1e-9)) return true;
     return std::fabs(std::log(ratio)) < 0.04;
   };
+  // Octave classes first: the tempo clock folds octaves, so a tempo and its octaves are one choice
+  // for the dance, and their summed score decides between metrical levels that are not octaves of
+  // each other (3/2, 4/3), which a single octave's score can tip under time-stretching. Then the best
+  // octave of the winning class (the tempo clock and the beat phase still need one). The running
+  // tempo's class, and then its octave, get the continuity bonus.
+  const double grid_per_octave =
+      (kTempoGridSize - 1) / std::log2(kTempoGridMaxBpm / kTempoGridMinBpm);  // ~69.6
+  auto score_at = [&s](double x) {  // linear interpolation on the grid; 0 outside
+    if (x < 0.0 || x > kTempoGridSize - 1) return 0.0;
+    const int i = std::min(static_cast<int>(x), kTempoGridSize - 2);
+    const double frac = x - i;
+    return (1.0 - frac) * s.score[i] + frac * s.score[i + 1];
+  };
+  const double running_pos =
+      s.tempo_locked ? std::log2(s.tempo_bpm / kTempoGridMinBpm) * grid_per_octave : 0.0;
+  auto near_class = [&](int g) {  // within 0.04 (natural log) of the running tempo, up to octaves
+    if (!s.tempo_locked) return false;
+    const double octaves = (g - running_pos) / grid_per_octave;
+    return std::fabs(octaves - std::round(octaves)) * std::log(2.0) < 0.04;
+  };
+  int best_class = 0;
   for (int g = 0; g < kTempoGridSize; ++g) {
+    double sum = 0.0;
+    for (int k = -3; k <= 3; ++k) sum += k == 0 ? s.score[g] : score_at(g + k * grid_per_octave);
+    const double value = sum * (near_class(g) ? kContinuityBonus : 1.0);
+    if (value > best_value) {
+      best_value = value;
+      best_class = g;
+    }
+  }
+  best = best_class;
+  best_value = -1.0;
+  for (int k = -3; k <= 3; ++k) {
+    const int g = static_cast<int>(std::lround(best_class + k * grid_per_octave));
+    if (g < 0 || g >= kTempoGridSize) continue;
     const bool near = s.tempo_locked && is_near(t.grid_bpm[g]);
     const double value = s.score[g] * (near ? kContinuityBonus : 1.0);
     if (value > best_value) {

@@ -45,6 +45,9 @@ struct SamplingOptions {
   // (<= 100) of the logit bias toward the codes of one dance period ago; 0 = off, negative = the model's
   // default (Model::default_period_lock). SampleCode ignores it.
   float period_lock = kModelDefaultPeriodLock;
+  // Crouch guard (sessions; docs/model.md section 6): after the pelvis has stayed low for longer than any
+  // real dancer's crouch, the lower body samples only codes that stand. SampleCode ignores it.
+  bool crouch_guard = true;
 };
 
 // OK, or InvalidArgument naming the bad field (negative temperature, top_p outside (0, 1], ...).

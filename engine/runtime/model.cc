@@ -1,5 +1,6 @@
 #include "engine/runtime/model.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include "absl/status/status.h"
@@ -8,6 +9,7 @@
 #include "engine/audio/feature_layout.h"
 #include "engine/audio/tempo_clock.h"
 #include "engine/nn/status_macros.h"
+#include "engine/vq/pose_reconstructor.h"
 
 namespace dance::engine {
 namespace {
@@ -69,6 +71,37 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
     m->unit_codebook_[stream] = std::move(unit);
   }
   DANCE_ASSIGN_OR_RETURN(m->skeleton_, Skeleton::FromMetadata(m->metadata_));
+  {
+    std::array<Eigen::Vector3f, kNumJoints> rest;
+    float lowest = 0.0f;
+    for (int j = 0; j < kNumJoints; ++j) {
+      const int parent = m->skeleton_.parents[j];
+      rest[j] = (parent < 0 ? Eigen::Vector3f::Zero() : rest[parent]) + m->skeleton_.offsets[j];
+      lowest = std::min(lowest, rest[j].y() - rest[0].y());
+    }
+    m->standing_height_ = -lowest;
+    const int k = m->lower_.codebook_size();
+    std::vector<int> codes(k);
+    std::vector<VqDecoderState> states(k, m->lower_.NewState());
+    std::vector<VqDecoderState*> state_ptrs(k);
+    for (int i = 0; i < k; ++i) {
+      codes[i] = i;
+      state_ptrs[i] = &states[i];
+    }
+    VqDecoderScratch scratch = m->lower_.NewScratch(k);
+    m->lower_code_height_.assign(k, 0.0f);
+    const int fpc = m->lower_.frames_per_code();
+    for (int step = 0; step < kCodeHeightSteps; ++step) {
+      const auto frames = m->lower_.DecodeBatch(codes, state_ptrs, scratch);
+      if (step + 1 == kCodeHeightSteps) {
+        for (int i = 0; i < k; ++i) m->lower_code_height_[i] = frames(kLowerHeightIndex, (i + 1) * fpc - 1);
+      }
+    }
+    for (int i = 0; i < k; ++i) {
+      if (m->lower_code_height_[i] < m->crouch_height()) m->crouched_lower_codes_.push_back(i);
+    }
+    if (static_cast<int>(m->crouched_lower_codes_.size()) == k) m->crouched_lower_codes_.clear();
+  }
   m->model_id_ = m->metadata_.value("model_id", std::string("unknown"));
   if (m->metadata_.contains("styles") && m->metadata_["styles"].is_array()) {
     for (const auto& s : m->metadata_["styles"]) {

@@ -20,6 +20,11 @@
 
 namespace dance::engine {
 
+// A pose is crouched when its pelvis is below this fraction of the standing height (0.79 m of 0.956 m for the
+// shipped skeleton; real Tang dancers are below 0.8 m in 0.9 % of frames). Used by the crouch guard
+// (session.h).
+inline constexpr float kCrouchHeightFraction = 0.83f;
+
 class Model {
  public:
   // Builds a model from validated weights (LoadModel = WeightsFile::Load + this).
@@ -74,6 +79,17 @@ class Model {
   float default_top_p() const { return default_top_p_; }
   // The codebooks with unit-length rows, (K, code_dim): stream 0 upper, 1 lower (cosine similarity of codes).
   const RowMatrix& unit_codebook(int stream) const { return unit_codebook_[stream]; }
+  // Pelvis height (metres) of each lower-body code held still: the code decoded kCodeHeightSteps times in a
+  // row from a fresh decoder state, the height channel of the last frame (the crouch guard's table;
+  // docs/model.md section 6).
+  const std::vector<float>& lower_code_height() const { return lower_code_height_; }
+  // The pelvis height of the skeleton's rest pose (standing straight) above its lowest joint, metres.
+  float standing_height() const { return standing_height_; }
+  // Below this pelvis height a pose is crouched: kCrouchHeightFraction x standing_height().
+  float crouch_height() const { return kCrouchHeightFraction * standing_height_; }
+  // The lower-body codes whose held pose is crouched (lower_code_height < crouch_height), ascending; the
+  // crouch guard excludes them. Empty if every code is (no code would be left to sample).
+  const std::vector<int>& crouched_lower_codes() const { return crouched_lower_codes_; }
   // The header metadata, for tools that copy it (feature config, training info).
   const nlohmann::json& metadata() const { return metadata_; }
 
@@ -97,7 +113,15 @@ class Model {
   float default_guidance_ = 1.0f;
   float default_top_p_ = 1.0f;
   std::array<RowMatrix, 2> unit_codebook_;    // upper, lower
+  std::vector<float> lower_code_height_;      // (K)
+  float standing_height_ = 0.0f;
+  std::vector<int> crouched_lower_codes_;
 };
+
+
+// Steps a lower-body code is repeated from a fresh decoder state to measure its pelvis height (the
+// decoder's receptive field is a few codes; measured on the default model: the heights move < 1 mm after 3).
+inline constexpr int kCodeHeightSteps = 4;
 
 // Loads and validates `path`.
 absl::StatusOr<std::shared_ptr<const Model>> LoadModel(const std::string& path);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <tuple>
 
 #include "absl/strings/str_cat.h"
@@ -265,6 +266,13 @@ void Session::SampleCodes(const float* logits_u, const float* logits_l, const fl
     lu = guided_u_;
     ll = guided_l_;
   }
+  if (CrouchGuardActive()) {
+    if (ll.data() != guided_l_.data()) {
+      std::copy(ll.begin(), ll.end(), guided_l_.begin());
+      ll = guided_l_;
+    }
+    for (int i : model_->crouched_lower_codes()) guided_l_[i] = -std::numeric_limits<float>::infinity();
+  }
   SamplingOptions effective = sampling_;  // SampleCode reads temperature, top-k and top-p
   effective.top_p = top_p();
   upper_code_ = SampleCode(lu, effective, generator_, sampler_);
@@ -301,6 +309,15 @@ bool PeriodTurned(const std::deque<double>& headings, size_t lag, double max_tur
   return std::abs(headings.back() - headings[headings.size() - 1 - lag]) > max_turn;
 }
 
+bool Session::CrouchGuardActive() const { return sampling_.crouch_guard && crouch_guard_on_; }
+
+void UpdateCrouchGuard(bool crouched, double* load, bool* active) {
+  static const double kKeep = std::exp(-1.0 / kCrouchDecayFrames);
+  *load = *load * kKeep + (crouched ? 1.0 : 0.0);
+  if (*load > kCrouchGuardOn) *active = true;
+  if (*load < kCrouchGuardOff) *active = false;
+}
+
 bool Session::PeriodTurned() const { return engine::PeriodTurned(heading_history_, lock_lag()); }
 
 void Session::ApplyPeriodLock(int stream, absl::Span<float> logits) {
@@ -322,6 +339,9 @@ void Session::EmitFrames(const Eigen::Ref<const Eigen::MatrixXf>& up, const Eige
   const SeqConfig& c = model_->config();
   // cond_.step was advanced by the model: the step just taken is cond_.step - 1, emitting period cond_.step.
   const int64_t first_frame = cond_.step * c.frames_per_step;
+  for (int f = 0; f < c.frames_per_step; ++f) {
+    UpdateCrouchGuard(low(kLowerHeightIndex, f) < model_->crouch_height(), &crouch_load_, &crouch_guard_on_);
+  }
   if (warped()) {
     for (int f = 0; f < c.frames_per_step; ++f) {
       std::array<Eigen::Vector3f, 24>& p = warp_.poses.emplace_back();
@@ -428,6 +448,8 @@ absl::StatusOr<SessionSnapshot> Session::Snapshot() const {
   s.period_steps = period_steps_;
   s.code_history = code_history_;
   s.heading_history = heading_history_;
+  s.crouch_load = crouch_load_;
+  s.crouch_guard_on = crouch_guard_on_;
   s.output = output_;
   return s;
 }
@@ -478,6 +500,8 @@ absl::Status Session::Restore(const SessionSnapshot& s) {
   period_steps_ = s.period_steps;
   code_history_ = s.code_history;
   heading_history_ = s.heading_history;
+  crouch_load_ = s.crouch_load;
+  crouch_guard_on_ = s.crouch_guard_on;
   output_ = s.output;
   return absl::OkStatus();
 }
@@ -501,6 +525,8 @@ void Session::Reset() {
   upper_code_ = lower_code_ = model_->config().codebook_size;
   code_history_.clear();
   heading_history_.clear();
+  crouch_load_ = 0.0;
+  crouch_guard_on_ = false;
   upper_state_.Clear();
   lower_state_.Clear();
   pose_ = PoseState();

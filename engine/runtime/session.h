@@ -118,6 +118,8 @@ struct SessionSnapshot {
   double period_steps = 0.0;
   std::deque<std::pair<int, int>> code_history;
   std::deque<double> heading_history;
+  double crouch_load = 0.0;
+  bool crouch_guard_on = false;
   std::vector<PoseFrame> output;
 };
 
@@ -206,6 +208,8 @@ class Session {
   // Whether the body turned by more than kPeriodLockMaxTurn over the last lock_lag() steps (the lower
   // body's lock does not repeat such a period).
   bool PeriodTurned() const;
+  // Whether the crouch guard holds the lower body to standing codes this step.
+  bool CrouchGuardActive() const;
   // One dance period in whole steps (>= 1).
   size_t lock_lag() const { return static_cast<size_t>(std::max(1.0, std::round(period_steps_))); }
   WarpState NewWarpState() const;
@@ -237,6 +241,8 @@ class Session {
   double period_steps_ = 0.0;         // the style's dance period in warped steps (0 = unknown: no lock)
   std::deque<std::pair<int, int>> code_history_;  // (upper, lower) codes of the last steps, oldest first
   std::deque<double> heading_history_;            // pose_.yaw at the start of the last steps, oldest first
+  double crouch_load_ = 0.0;      // leaky count of crouched decoded frames (UpdateCrouchGuard)
+  bool crouch_guard_on_ = false;  // the load passed kCrouchGuardOn and has not decayed below kCrouchGuardOff
   SamplerScratch sampler_;
   std::vector<float> guided_u_, guided_l_;  // (K) scratch
   Eigen::VectorXf lock_sim_;                // (K) scratch of the period lock
@@ -259,6 +265,22 @@ inline constexpr double kPeriodLockMaxTurn = 3.14159265358979;
 // Whether the heading changed by more than `max_turn` over the last `lag` steps of `headings` (the heading
 // at the start of each step, oldest first; needs lag + 1 entries, false with fewer).
 bool PeriodTurned(const std::deque<double>& headings, size_t lag, double max_turn = kPeriodLockMaxTurn);
+
+// The crouch guard (SamplingOptions::crouch_guard): a decoded frame is crouched when its pelvis is below
+// Model::crouch_height() (kCrouchHeightFraction of the standing height). The session keeps a leaky count of
+// crouched decoded frames, load <- load exp(-1 / kCrouchDecayFrames) + crouched (30 s memory). Over the 38
+// real Tang dances its maximum is 83 frames (a rumba dip of 2.9 s). When it passes kCrouchGuardOn (120:
+// four seconds of crouching in one go, or repeated dips), the lower body's codes whose held pose is
+// crouched (Model::crouched_lower_codes) are excluded from sampling until the load has decayed below
+// kCrouchGuardOff (60; about 20 s of standing). Without it the default model can sink into a crouch with one
+// leg lifted and stay there for minutes, and a guard that let go as soon as the pelvis rose saw it sink
+// back at once (its own autoregressive drift; docs/training.md).
+inline constexpr double kCrouchDecayFrames = 900.0;
+inline constexpr double kCrouchGuardOn = 120.0;
+inline constexpr double kCrouchGuardOff = 60.0;
+
+// One decoded frame's update of the crouch guard's state (load and whether the guard is on).
+void UpdateCrouchGuard(bool crouched, double* load, bool* active);
 
 // Advances each session by one step with one pass over the weights for all of them (every Linear is a
 // matrix-matrix product over the batch). Every session must have StepsReady() > 0 (FailedPrecondition

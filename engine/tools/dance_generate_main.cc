@@ -2,13 +2,14 @@
 //
 //   dance-generate --audio FILE --out DANCE.json [--model M (default models/default.dncw)] [--seed S] [--style NAME[:W][,NAME:W...]]
 //                  [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--period-lock B] [--chunk-samples N]
-//                  [--bvh DANCE.bvh] [--quiet]
+//                  [--crouch-guard 0|1] [--bvh DANCE.bvh] [--quiet]
 //
 // The audio is pushed in chunks of N input frames (default 4096; the dance does not depend on N), stepping
 // whenever a step is ready, exactly as a live stream would. Frames past the end of the audio are dropped.
 // Prints one JSON summary line (frames, seconds of audio, wall time, x real time) unless --quiet.
 // --period-lock B: the period lock's weight (0 = off; default: the model's, time_base.period_lock); the
-// dance file records the weight in effect.
+// dance file records the weight in effect. --crouch-guard 0 turns the crouch guard off (default on; for
+// measuring it, docs/model.md section 6).
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -42,7 +43,7 @@ struct Flags {
 constexpr char kUsage[] =
     "usage: dance-generate --audio FILE --out DANCE.json [--model M] [--seed S] [--style NAME[:W],...]\n"
     "                      [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--period-lock B]\n"
-    "                      [--chunk-samples N]\n"
+    "                      [--chunk-samples N] [--crouch-guard 0|1]\n"
     "                      [--bvh DANCE.bvh] [--quiet]\n";
 
 absl::Status ParseFlags(int argc, char** argv, Flags* f) {
@@ -78,6 +79,9 @@ absl::Status ParseFlags(int argc, char** argv, Flags* f) {
       ok = absl::SimpleAtof(v, &f->sampling.guidance);
     } else if (arg == "--period-lock") {
       ok = absl::SimpleAtof(v, &f->sampling.period_lock);
+    } else if (arg == "--crouch-guard") {
+      ok = v == "0" || v == "1";
+      f->sampling.crouch_guard = v == "1";
     } else if (arg == "--chunk-samples") {
       ok = absl::SimpleAtoi(v, &f->chunk_samples) && f->chunk_samples >= 1;
     } else {
@@ -162,6 +166,7 @@ absl::Status Run(Flags flags) {
                 {"top_p", s.top_p()},
                 {"guidance", s.guidance()},
                 {"period_lock", s.period_lock()},
+                {"crouch_guard", flags.sampling.crouch_guard},
                 {"audio_file", flags.audio},
                 {"audio_duration_s", duration},
                 {"latency_ms", s.LatencyMs()},

@@ -54,7 +54,7 @@ Eigen::Quaternionf ShortestArc(const Eigen::Vector3f& a_raw, const Eigen::Vector
 void PoseReconstructor::Reconstruct(const float* upper, const float* lower, PoseState& state,
                                     std::array<Eigen::Vector3f, kNumJoints>* positions,
                                     std::array<Eigen::Quaternionf, kNumJoints>* rotations) const {
-  const float vx = lower[27], vz = lower[28], yaw_rate = lower[29], height = lower[30];
+  const float vx = lower[27], vz = lower[28], yaw_rate = lower[29], height = lower[kLowerHeightIndex];
   state.yaw += yaw_rate;
   const Eigen::Vector3f step = RotateY(Eigen::Vector3f(vx, 0.0f, vz), state.yaw);
   state.root_x += step.x();

@@ -28,6 +28,7 @@ namespace dance::engine {
 
 inline constexpr int kUpperDims = 45;
 inline constexpr int kLowerDims = 31;
+inline constexpr int kLowerHeightIndex = 30;  // the pelvis height channel of the lower features (metres)
 
 // The integrated root of one stream; copyable (snapshot = copy).
 struct PoseState {

@@ -52,6 +52,57 @@ TEST(PerformIntegration, ServerDanceEqualsTheEngineRunDirectly) {
   }
 }
 
+TEST(EngineBackend, ControlKeepsTheGuidanceTopPAndLockItLeavesUnset) {
+  // A Control's sampling with guidance 0, top_p 0 and no period_lock (converted to negative values) keeps
+  // the values in effect; in a StreamHeader the same mean the model's defaults (tiny model: guidance 1).
+  absl::StatusOr<std::unique_ptr<EngineBackend>> backend = LoadEngineBackend(TinyModelPath());
+  ASSERT_TRUE(backend.ok()) << backend.status();
+  StreamConfig config;
+  config.style = {{"waltz", 1.0f}};  // guidance has no effect with style "none"
+  config.seed = 4;
+  config.sampling.guidance = 2.5f;
+  config.sampling.top_p = 0.8f;
+  const std::vector<float> audio = TestSignal(6.0, 24000);
+  const size_t half = audio.size() / 2;
+  auto run = [&](const SamplingConfig* control) {
+    absl::StatusOr<std::unique_ptr<EngineStream>> s = (*backend)->Open(config);
+    EXPECT_TRUE(s.ok()) << s.status();
+    EngineStream* stream = s->get();
+    auto drain = [&] {
+      while (stream->StepsReady() > 0) EXPECT_TRUE((*backend)->StepBatch(absl::MakeConstSpan(&stream, 1)).ok());
+    };
+    EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
+    drain();
+    if (control != nullptr) EXPECT_TRUE(stream->SetSampling(*control).ok());
+    EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
+    stream->EndOfAudio();
+    drain();
+    std::vector<FrameData> frames;
+    stream->PopFrames(&frames);
+    return frames;
+  };
+  SamplingConfig keep;  // temperature 1, top_k 0: as opened; the rest unset
+  SamplingConfig guidance_off = keep;
+  guidance_off.guidance = 1.0f;
+  SamplingConfig no_cut = keep;
+  no_cut.top_p = 1.0f;
+  const std::vector<FrameData> base = run(nullptr), kept = run(&keep);
+  ASSERT_EQ(base.size(), kept.size());
+  ASSERT_GT(base.size(), 100u);
+  for (size_t i = 0; i < base.size(); ++i) {
+    ASSERT_EQ(base[i].upper_code, kept[i].upper_code) << "frame " << i;
+    ASSERT_EQ(base[i].lower_code, kept[i].lower_code) << "frame " << i;
+  }
+  // Setting them does change the continuation (so the comparison above could fail).
+  for (const SamplingConfig* changed : {&guidance_off, &no_cut}) {
+    const std::vector<FrameData> other = run(changed);
+    ASSERT_EQ(other.size(), base.size());
+    int differ = 0;
+    for (size_t i = 0; i < base.size(); ++i) differ += other[i].upper_code != base[i].upper_code;
+    EXPECT_GT(differ, 0);
+  }
+}
+
 TEST(PerformIntegration, TwentyConcurrentSessionsAllComplete) {
   ServerHarness h;
   const std::vector<float> audio = TestSignal(2.0, 24000);

@@ -191,8 +191,15 @@ WeightsWriter TinyModelWriter(const TinyModelOptions& o) {
     }
     std::vector<std::pair<int, float>> overrides;
     if (i == 1 && o.yaw_rate_mean != 0.0) overrides.emplace_back(29, static_cast<float>(o.yaw_rate_mean));
+    if (i == 1 && o.height_mean != 0.0) overrides.emplace_back(30, static_cast<float>(o.height_mean));
     b.Random(pre + ".pose_mean", {out}, 0.1f, 0.0f, overrides);
-    b.Const(pre + ".pose_std", {out}, 0.05f);
+    if (i == 1 && o.height_mean != 0.0) {  // and a height that varies by centimetres between codes
+      std::vector<float> std_dev(out, 0.05f);
+      std_dev[30] = 1.0f;
+      w.Add(pre + ".pose_std", {out}, std_dev);
+    } else {
+      b.Const(pre + ".pose_std", {out}, 0.05f);
+    }
   }
   return w;
 }

@@ -42,6 +42,7 @@ struct TinyModelOptions {
   double guidance = -1.0;     // >= 0: sampling.guidance (the sessions' default style guidance)
   double top_p = -1.0;        // > 0: sampling.top_p (the sessions' default nucleus cut)
   double yaw_rate_mean = 0.0; // != 0: the lower decoder's mean yaw rate (radians per frame, channel 29)
+  double height_mean = 0.0;   // != 0: the lower decoder's mean pelvis height (metres, channel 30; its std 1)
 };
 
 WeightsWriter TinyModelWriter(const TinyModelOptions& options);
