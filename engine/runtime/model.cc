@@ -14,6 +14,39 @@
 namespace dance::engine {
 namespace {
 
+// The pelvis height of the rest pose above its lowest joint.
+float StandingHeight(const Skeleton& skeleton) {
+  std::array<Eigen::Vector3f, kNumJoints> rest;
+  float lowest = 0.0f;
+  for (int j = 0; j < kNumJoints; ++j) {
+    const int parent = skeleton.parents[j];
+    rest[j] = (parent < 0 ? Eigen::Vector3f::Zero() : rest[parent]) + skeleton.offsets[j];
+    lowest = std::min(lowest, rest[j].y() - rest[0].y());
+  }
+  return -lowest;
+}
+
+// Each code decoded kCodeHeightSteps times in a row from a fresh state (all codes in one batch): the
+// height channel of the last frame.
+std::vector<float> HeldCodeHeights(const VqDecoder& lower) {
+  const int k = lower.codebook_size();
+  std::vector<int> codes(k);
+  std::vector<VqDecoderState> states(k, lower.NewState());
+  std::vector<VqDecoderState*> state_ptrs(k);
+  for (int i = 0; i < k; ++i) {
+    codes[i] = i;
+    state_ptrs[i] = &states[i];
+  }
+  VqDecoderScratch scratch = lower.NewScratch(k);
+  for (int step = 0; step + 1 < kCodeHeightSteps; ++step) lower.DecodeBatch(codes, state_ptrs, scratch);
+  const auto frames = lower.DecodeBatch(codes, state_ptrs, scratch);
+  const int fpc = lower.frames_per_code();
+  std::vector<float> height(k);
+  for (int i = 0; i < k; ++i) height[i] = frames(kLowerHeightIndex, (i + 1) * fpc - 1);
+  return height;
+}
+
+
 // Reads `per` (metadata time_base.<key>, an object style name -> number) into `out` by style row: every name
 // must be one of `m`'s styles and every value a number in [lo, hi] (an integer if `integer`); `range` names
 // the bounds in the error message.
@@ -71,37 +104,12 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
     m->unit_codebook_[stream] = std::move(unit);
   }
   DANCE_ASSIGN_OR_RETURN(m->skeleton_, Skeleton::FromMetadata(m->metadata_));
-  {
-    std::array<Eigen::Vector3f, kNumJoints> rest;
-    float lowest = 0.0f;
-    for (int j = 0; j < kNumJoints; ++j) {
-      const int parent = m->skeleton_.parents[j];
-      rest[j] = (parent < 0 ? Eigen::Vector3f::Zero() : rest[parent]) + m->skeleton_.offsets[j];
-      lowest = std::min(lowest, rest[j].y() - rest[0].y());
-    }
-    m->standing_height_ = -lowest;
-    const int k = m->lower_.codebook_size();
-    std::vector<int> codes(k);
-    std::vector<VqDecoderState> states(k, m->lower_.NewState());
-    std::vector<VqDecoderState*> state_ptrs(k);
-    for (int i = 0; i < k; ++i) {
-      codes[i] = i;
-      state_ptrs[i] = &states[i];
-    }
-    VqDecoderScratch scratch = m->lower_.NewScratch(k);
-    m->lower_code_height_.assign(k, 0.0f);
-    const int fpc = m->lower_.frames_per_code();
-    for (int step = 0; step < kCodeHeightSteps; ++step) {
-      const auto frames = m->lower_.DecodeBatch(codes, state_ptrs, scratch);
-      if (step + 1 == kCodeHeightSteps) {
-        for (int i = 0; i < k; ++i) m->lower_code_height_[i] = frames(kLowerHeightIndex, (i + 1) * fpc - 1);
-      }
-    }
-    for (int i = 0; i < k; ++i) {
-      if (m->lower_code_height_[i] < m->crouch_height()) m->crouched_lower_codes_.push_back(i);
-    }
-    if (static_cast<int>(m->crouched_lower_codes_.size()) == k) m->crouched_lower_codes_.clear();
+  m->standing_height_ = StandingHeight(m->skeleton_);
+  m->lower_code_height_ = HeldCodeHeights(m->lower_);
+  for (int i = 0; i < static_cast<int>(m->lower_code_height_.size()); ++i) {
+    if (m->lower_code_height_[i] < m->crouch_height()) m->crouched_lower_codes_.push_back(i);
   }
+  if (m->crouched_lower_codes_.size() == m->lower_code_height_.size()) m->crouched_lower_codes_.clear();
   m->model_id_ = m->metadata_.value("model_id", std::string("unknown"));
   if (m->metadata_.contains("styles") && m->metadata_["styles"].is_array()) {
     for (const auto& s : m->metadata_["styles"]) {
