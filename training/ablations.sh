@@ -10,6 +10,7 @@
 #                                                             .venv for metrics)
 # VARIANT: full, no_pre, no_gate, shared_mamba, reactive.
 # Results: training/runs/abl_<name>/{train.log,eval_report.json,engine_tempo.json,engine/metrics.md}
+# (a run directory that exists is resumed: remove training/runs/abl_* to start over with another parent).
 set -euo pipefail
 parent="$(realpath "${1:?usage: training/ablations.sh PARENT.dncw [ITERS [VARIANT...]]}")"
 cd "$(dirname "$0")/.."
@@ -22,6 +23,8 @@ for w in "${wanted[@]}"; do
   esac
 done
 py="${PYTHON:-.venv/bin/python}"
+# Tokens are cached per parent (its VQ-VAEs make them): a cache made with another parent would be wrong.
+tokens="training/runs/ablation_tokens_$(sha256sum "$parent" | cut -c1-12)"
 export OMP_WAIT_POLICY=PASSIVE
 for spec in "full:" "no_pre:--no-pre" "no_gate:--no-gate" "shared_mamba:--shared-mamba" "reactive:--lookahead 1"; do
   name="${spec%%:*}"
@@ -30,6 +33,6 @@ for spec in "full:" "no_pre:--no-pre" "no_gate:--no-gate" "shared_mamba:--shared
   run="training/runs/abl_${name}"
   # shellcheck disable=SC2086
   "$py" -m training.train --run "$run" --stages seq,export,eval --vq-model "$parent" --init-model "$parent" \
-    --vq-run training/runs/ablation_tokens --seq-iters "$iters" --lr 3e-4 --val-every 100 \
+    --vq-run "$tokens" --seq-iters "$iters" --lr 3e-4 --val-every 100 \
     --out "$run/model.dncw" $flags
 done

@@ -101,10 +101,10 @@ def main(argv=None) -> int:
   ap.add_argument("--codebook-size", type=int, default=512)
   ap.add_argument("--vq-path-weight", type=float, default=0.0,
                   help="lower-body VQ-VAE: weight of the integrated root path loss (train_vq.vq_loss)")
-  ap.add_argument("--seq-iters", type=int, default=500,
+  ap.add_argument("--seq-iters", type=int, default=1000,
                   help="iterations of the sequence model (the tempo-normalised phase when pretraining; "
                        "also the default of fixed-rate runs, --tempo-ref 0)")
-  ap.add_argument("--pretrain-iters", type=int, default=800,
+  ap.add_argument("--pretrain-iters", type=int, default=1600,
                   help="tempo-normalised runs from scratch: first train the fixed-rate model on the "
                        "tempo-augmented real-time pairs for this many iterations (0: none), then fine-tune it "
                        "on the warped timeline at --finetune-lr")

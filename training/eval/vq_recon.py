@@ -3,9 +3,10 @@ VQ-VAEs (no sequence model), beside the real dances and the baselines. A generat
 better than these reconstructions.
 
     .venv/bin/python -m training.eval.vq_recon [--model models/default.dncw] [--lower-ckpt RUN/vq_lower.pt]
+        [--upper-ckpt RUN/vq_upper.pt]
 
-`--lower-ckpt` swaps in a lower-body VQ-VAE checkpoint from training (train_vq) to compare it against the
-file's. Decoding: rep.decode from the real first frame's heading and root, then the canonical bone lengths
+`--lower-ckpt` / `--upper-ckpt` swap in a VQ-VAE checkpoint from training (train_vq) to compare it against
+the file's. Decoding: rep.decode from the real first frame's heading and root, then the canonical bone lengths
 (as the engine). Needs librosa's beat cache (the project .venv) for BAS.
 """
 from __future__ import annotations
@@ -46,13 +47,15 @@ def main(argv=None) -> None:
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   ap.add_argument("--model", default=str(REPO / "models" / "default.dncw"))
   ap.add_argument("--lower-ckpt", default=None, help="a train_vq checkpoint to use for the lower body")
+  ap.add_argument("--upper-ckpt", default=None, help="a train_vq checkpoint to use for the upper body")
   args = ap.parse_args(argv)
   _, vqs, _ = load_models(args.model)
-  if args.lower_ckpt:
-    ck = torch.load(args.lower_ckpt)
-    vq = PoseVQVAE(VQConfig.from_dict(ck["cfg"]))
-    vq.load_state_dict(ck["model"])
-    vqs["lower"] = vq.eval()
+  for part, path in (("lower", args.lower_ckpt), ("upper", args.upper_ckpt)):
+    if path:
+      ck = torch.load(path)
+      vq = PoseVQVAE(VQConfig.from_dict(ck["cfg"]))
+      vq.load_state_dict(ck["model"])
+      vqs[part] = vq.eval()
   ev = Evaluator.default()
   rows = {"VQ-VAE reconstruction": ev.evaluate(reconstructed(vqs, ev.validation))}
   rows.update(ev.baselines())
