@@ -10,7 +10,8 @@
 #                                                             .venv for metrics)
 # VARIANT: full, no_pre, no_gate, shared_mamba, reactive.
 # Results: training/runs/abl_<name>/{train.log,eval_report.json,engine_tempo.json,engine/metrics.md}
-# (a run directory that exists is resumed: remove training/runs/abl_* to start over with another parent).
+# A run directory that exists is resumed if it was made from the same parent (its parent.sha256), else the
+# script stops: remove training/runs/abl_* to start over with another parent.
 set -euo pipefail
 parent="$(realpath "${1:?usage: training/ablations.sh PARENT.dncw [ITERS [VARIANT...]]}")"
 cd "$(dirname "$0")/.."
@@ -24,13 +25,20 @@ for w in "${wanted[@]}"; do
 done
 py="${PYTHON:-.venv/bin/python}"
 # Tokens are cached per parent (its VQ-VAEs make them): a cache made with another parent would be wrong.
-tokens="training/runs/ablation_tokens_$(sha256sum "$parent" | cut -c1-12)"
+parent_sha="$(sha256sum "$parent" | cut -d' ' -f1)"
+tokens="training/runs/ablation_tokens_${parent_sha:0:12}"
 export OMP_WAIT_POLICY=PASSIVE
 for spec in "full:" "no_pre:--no-pre" "no_gate:--no-gate" "shared_mamba:--shared-mamba" "reactive:--lookahead 1"; do
   name="${spec%%:*}"
   flags="${spec#*:}"
   if (( ${#wanted[@]} )) && [[ ! " ${wanted[*]} " == *" ${name} "* ]]; then continue; fi
   run="training/runs/abl_${name}"
+  if [[ -d "$run" && "$(cat "$run/parent.sha256" 2>/dev/null)" != "$parent_sha" ]]; then
+    echo "ablations.sh: $run was made from another parent (or before parents were recorded); remove it" >&2
+    exit 2
+  fi
+  mkdir -p "$run"
+  echo "$parent_sha" > "$run/parent.sha256"
   # shellcheck disable=SC2086
   "$py" -m training.train --run "$run" --stages seq,export,eval --vq-model "$parent" --init-model "$parent" \
     --vq-run "$tokens" --seq-iters "$iters" --lr 3e-4 --val-every 100 \

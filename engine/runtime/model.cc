@@ -46,7 +46,6 @@ std::vector<float> HeldCodeHeights(const VqDecoder& lower) {
   return height;
 }
 
-
 // Reads `per` (metadata time_base.<key>, an object style name -> number) into `out` by style row: every name
 // must be one of `m`'s styles and every value a number in [lo, hi] (an integer if `integer`); `range` names
 // the bounds in the error message.
