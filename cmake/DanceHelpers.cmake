@@ -2,7 +2,8 @@
 
 # Warnings for the project's own targets (not for third-party code).
 function(dance_target_warnings target)
-  target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic -Wshadow=local -Wno-unused-parameter)
+  target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic -Wno-unused-parameter
+                         $<$<CXX_COMPILER_ID:GNU>:-Wshadow=local>)  # clang has no -Wshadow=local
   if(DANCE_WERROR)
     target_compile_options(${target} PRIVATE -Werror)
   endif()

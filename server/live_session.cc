@@ -57,7 +57,8 @@ absl::Status LiveSession::QueueAudio(int64_t sample_offset, std::string pcm, abs
   }
   next_offset_ += frames;
   pending_samples_ += frames;
-  InboxItem item{InboxItem::Kind::kAudio};
+  InboxItem item;
+  item.kind = InboxItem::Kind::kAudio;
   item.pcm = std::move(pcm);
   item.end_sample = next_offset_;
   item.arrival = arrival;
@@ -82,7 +83,8 @@ absl::Status LiveSession::QueueControl(std::optional<StyleMix> style,
   absl::MutexLock lock(&inbox_mu_);
   if (closed_) return absl::FailedPreconditionError("session is over");
   if (style) current_style_ = style;
-  InboxItem item{InboxItem::Kind::kControl};
+  InboxItem item;
+  item.kind = InboxItem::Kind::kControl;
   item.style = std::move(style);
   item.sampling = sampling;
   inbox_.push_back(std::move(item));
@@ -100,7 +102,8 @@ absl::Status LiveSession::QueueEnd(absl::Time arrival) {
   if (closed_) return absl::FailedPreconditionError("session is over");
   if (end_queued_) return absl::InvalidArgumentError("EndOfAudio sent twice");
   end_queued_ = true;
-  InboxItem item{InboxItem::Kind::kEnd};
+  InboxItem item;
+  item.kind = InboxItem::Kind::kEnd;
   item.end_sample = next_offset_;
   item.arrival = arrival;
   inbox_.push_back(std::move(item));

@@ -114,7 +114,8 @@ class LiveSession {
 
  private:
   struct InboxItem {
-    enum class Kind { kAudio, kControl, kEnd } kind;
+    enum class Kind { kAudio, kControl, kEnd };
+    Kind kind = Kind::kAudio;
     std::string pcm;
     int64_t end_sample = 0;
     absl::Time arrival;

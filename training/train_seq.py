@@ -223,7 +223,11 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
     model.load_state_dict(ck["model"])
     opt.load_state_dict(ck["opt"])
     history, start, elapsed = ck["history"], ck["iter"], ck.get("elapsed", 0.0)
-    rng = np.random.default_rng(start)
+    if "rng" in ck:  # the batch sampler and torch continue where they stopped: a resume changes nothing
+      rng.bit_generator.state = ck["rng"]
+      torch.set_rng_state(ck["torch_rng"])
+    else:  # a checkpoint from before the random states were saved
+      rng = np.random.default_rng(start)
   iters = args.seq_iters
 
   def train_mode():
@@ -236,7 +240,8 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
 
   def save(it):
     torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "history": history, "iter": it,
-                "cfg": cfg.to_dict(), "elapsed": time.time() - t_start}, ck_path)
+                "cfg": cfg.to_dict(), "elapsed": time.time() - t_start, "rng": rng.bit_generator.state,
+                "torch_rng": torch.get_rng_state()}, ck_path)
 
   for it in tqdm(range(start, iters), desc="seq", initial=start, total=iters, mininterval=10):
     warm = min(1.0, (it + 1) / 200)

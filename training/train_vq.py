@@ -62,8 +62,13 @@ def sample_windows(arrays: list[np.ndarray], batch: int, rng: np.random.Generato
 
 
 def train_vq(part: str, train_arrays: list[np.ndarray], cfg: VQConfig, iters: int, ckpt_path, log,
-             batch: int = 32, lr: float = 3e-4, seed: int = 0) -> tuple[PoseVQVAE, list[dict]]:
-  """Trains one VQ-VAE, resuming from `ckpt_path` if it exists; returns the model and the loss history."""
+             batch: int = 32, lr: float = 3e-4, seed: int = 0, save_every: int = 500,
+             stop_after: int | None = None) -> tuple[PoseVQVAE, list[dict]]:
+  """Trains one VQ-VAE, resuming from `ckpt_path` if it exists; returns the model and the loss history.
+
+  The checkpoint holds the window sampler's and torch's random states, so a resumed run continues exactly
+  as the uninterrupted one would have (before, a resume restarted the sampler from its seed and trained on
+  the first windows again). `stop_after` ends (and saves) after that many iterations of the schedule."""
   torch.manual_seed(seed)
   rng = np.random.default_rng(seed)
   vq = PoseVQVAE(cfg)
@@ -78,9 +83,13 @@ def train_vq(part: str, train_arrays: list[np.ndarray], cfg: VQConfig, iters: in
     vq.load_state_dict(ck["model"])
     opt.load_state_dict(ck["opt"])
     history, start = ck["history"], ck["iter"]
+    if "rng" in ck:
+      rng.bit_generator.state = ck["rng"]
+      torch.set_rng_state(ck["torch_rng"])
   vq.train()
+  end = iters if stop_after is None else min(iters, stop_after)
   t0 = time.time()
-  for it in tqdm(range(start, iters), desc=f"vq-{part}", initial=start, total=iters, mininterval=10):
+  for it in tqdm(range(start, end), desc=f"vq-{part}", initial=start, total=iters, mininterval=10):
     for g in opt.param_groups:  # cosine decay
       g["lr"] = lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * it / iters)))
     x = sample_windows(train_arrays, batch, rng)
@@ -92,9 +101,10 @@ def train_vq(part: str, train_arrays: list[np.ndarray], cfg: VQConfig, iters: in
     if it % 50 == 0 or it == iters - 1:
       logs.update(iter=it, loss=float(loss))
       history.append(logs)
-    if it % 500 == 499 or it == iters - 1:
+    if it % save_every == save_every - 1 or it == end - 1:
       torch.save({"model": vq.state_dict(), "opt": opt.state_dict(), "history": history, "iter": it + 1,
-                  "cfg": cfg.to_dict()}, ckpt_path)
+                  "cfg": cfg.to_dict(), "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state()},
+                 ckpt_path)
       log(f"vq-{part} iter {it + 1}/{iters} loss {float(loss):.4f} {logs} ({time.time() - t0:.0f} s)")
   vq.eval()
   return vq, history

@@ -73,7 +73,9 @@ TEST(EngineBackend, ControlKeepsTheGuidanceTopPAndLockItLeavesUnset) {
     };
     EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
     drain();
-    if (control != nullptr) EXPECT_TRUE(stream->SetSampling(*control).ok());
+    if (control != nullptr) {
+      EXPECT_TRUE(stream->SetSampling(*control).ok());
+    }
     EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
     stream->EndOfAudio();
     drain();

@@ -62,6 +62,22 @@ def test_vq_two_steps_and_resume(tmp_path):
   assert hist2[-1]["iter"] == 2  # resumed at iteration 2, ran one more
 
 
+def test_vq_resume_continues_the_uninterrupted_run(tmp_path):
+  rng = np.random.default_rng(1)
+  arrays = [rng.standard_normal((80, 31)).astype(np.float32) * 0.01 for _ in range(3)]
+  cfg = VQConfig(in_dim=31, width=8, code_dim=4, codebook_size=8)
+  straight, _ = train_vq("upper", arrays, cfg, iters=6, ckpt_path=tmp_path / "a.pt", log=lambda m: None,
+                         batch=4)
+  train_vq("upper", arrays, cfg, iters=6, ckpt_path=tmp_path / "b.pt", log=lambda m: None, batch=4,
+           stop_after=3)
+  assert torch.load(tmp_path / "b.pt")["iter"] == 3
+  resumed, _ = train_vq("upper", arrays, cfg, iters=6, ckpt_path=tmp_path / "b.pt", log=lambda m: None,
+                        batch=4)
+  a, b = straight.state_dict(), resumed.state_dict()
+  moved = [k for k in a if not torch.equal(a[k], b[k])]
+  assert not moved, moved
+
+
 def test_root_integration_matches_representation():
   from training.data import representation as rep
   rng = np.random.default_rng(0)

@@ -9,7 +9,11 @@ namespace dance::engine::audio {
 namespace {
 
 // volatile: the products must be computed at run time, under the mode in force.
-float Multiply(volatile float a, volatile float b) { return a * b; }
+float Multiply(float a, float b) {
+  volatile float x = a;
+  volatile float y = b;
+  return x * y;
+}
 
 #if defined(__x86_64__) || defined(__aarch64__)
 TEST(ScopedFlushDenormalsTest, FlushesSubnormalResultsInsideTheScopeOnly) {

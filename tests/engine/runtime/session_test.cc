@@ -479,9 +479,9 @@ TEST(Session, CrouchGuardStandsTheDancerUpAfterALongCrouch) {
         r.standing += height[frames[i].lower_code] >= floor;
       }
       for (size_t f = i; f < i + 4; ++f) {
-        const bool low = frames[f].positions[0].y() < floor;
-        UpdateCrouchGuard(low, &load, &active);
-        crouched = low ? crouched + 1 : 0;
+        const bool below = frames[f].positions[0].y() < floor;
+        UpdateCrouchGuard(below, &load, &active);
+        crouched = below ? crouched + 1 : 0;
         r.longest = std::max(r.longest, crouched);
       }
     }
