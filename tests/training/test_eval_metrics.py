@@ -222,7 +222,7 @@ def test_beat_lock_separates_locked_from_unlocked():
 
 
 def test_tracker_level_errors_fold_octaves_only():
-    from training.eval.tracker_levels import level_errors, octave_flips, window_tempi
+    from training.eval.tracker_levels import level_errors, octave_flips, octave_mismatches, window_tempi
     base = [100.0, 120.0, 120.0, 120.0]
     # 0.85x: exact following, an octave below (the clock folds it), and a 3/2 switch.
     stretched = [90.0, 102.0, 51.0, 153.0]
@@ -230,6 +230,9 @@ def test_tracker_level_errors_fold_octaves_only():
     assert len(e) == 3 and abs(e[0]) < 1e-9 and abs(e[1]) < 1e-9
     assert abs(e[2] - (np.log2(1.5) - 1.0)) < 1e-9  # 3/2 = 3/4 up to an octave: off-level
     assert octave_flips([90.0, 102.0, 51.0, 102.0, 104.0]) == 2
+    # The octave below is a mismatch, and so is 3/2 (log2 0.58: nearer the octave above); exact is not.
+    assert octave_mismatches(base, stretched, 0.85) == 2
+    assert octave_mismatches(base, [90.0, 102.0, 136.0, 102.0], 0.85) == 0  # 4/3: off-level, same octave
     # Window medians in music time: a version played twice as fast covers window k in half the frames.
     tempo = np.concatenate([np.full(150, 80.0), np.full(150, 90.0)])
     assert window_tempi(tempo, 2.0, 2) == [80.0, 90.0]

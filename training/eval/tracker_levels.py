@@ -6,8 +6,10 @@ music time (window k of a version played f times as fast covers real seconds [10
 A window is *off-level* when the stretched version's median tempo, divided by f, is not the original's up
 to whole octaves (|log2 error mod 1| > 0.05, about 3.5 %): the tempo clock folds octaves, so only other
 ratios (3/2, 4/3) make it lose the tempo. Octave flips (a window's tempo about 2x or 1/2 its
-predecessor's) do not move the clock but change the beat and bar phase features. The first window
-(lock-in) is not scored.
+predecessor's) do not move the clock but change the beat and bar phase features. An *octave mismatch* is a
+window where the stretched version sits on another octave than the original (unfolded |log2 error| > 0.5):
+the clock agrees, the beat and bar phases of the two versions do not, so a dance cannot scale with the
+music there. The first window (lock-in) is not scored.
 
   /usr/bin/python3 -m training.eval.tracker_levels [--songs all|train|validation|ID,...] [--out r.json]
 
@@ -47,6 +49,12 @@ def level_errors(base: list[float], stretched: list[float], factor: float) -> li
   return list((e + 0.5) % 1.0 - 0.5)
 
 
+def octave_mismatches(base: list[float], stretched: list[float], factor: float) -> int:
+  """Windows (from the second on) where stretched / (factor x base) is nearer another octave than 1."""
+  e = np.log2(np.asarray(stretched[1:]) / np.asarray(base[1:]) / factor)
+  return int(np.sum(np.abs(e) > 0.5))
+
+
 def octave_flips(tempi: list[float]) -> int:
   t = np.asarray(tempi[1:])
   return int(np.sum(np.abs(np.log2(t[1:] / t[:-1])) > 0.7))
@@ -82,17 +90,21 @@ def main(argv=None) -> None:
       errs = [e for f in FACTORS for e in level_errors(tempi[1.0], tempi[f], f)]
       off = int(np.sum(np.abs(errs) > 0.05))
       flips = sum(octave_flips(t) for t in tempi.values())
+      mism = sum(octave_mismatches(tempi[1.0], tempi[f], f) for f in FACTORS)
       rows.append({"id": mid, "style": str(z["style"]), "tempi": {str(f): t for f, t in tempi.items()},
-                   "off_level": off, "windows": len(errs), "octave_flips": flips})
-      print(f"{mid:18s} {str(z['style']):8s} off-level {off}/{len(errs)}  octave flips {flips}  " +
+                   "off_level": off, "windows": len(errs), "octave_flips": flips, "octave_mismatches": mism})
+      print(f"{mid:18s} {str(z['style']):8s} off-level {off}/{len(errs)}  octave flips {flips}  "
+            f"mismatches {mism}  " +
             " | ".join(f"{f}x: " + " ".join(f"{t:4.0f}" for t in tempi[f]) for f in (1.0,) + FACTORS), flush=True)
   off = sum(r["off_level"] for r in rows)
   n = sum(r["windows"] for r in rows)
   flips = sum(r["octave_flips"] for r in rows)
-  print(f"off-level windows {off}/{n}; octave flips {flips} ({len(rows)} songs)")
+  mism = sum(r["octave_mismatches"] for r in rows)
+  print(f"off-level windows {off}/{n}; octave flips {flips}; octave mismatches stretched vs original {mism}/{n} "
+        f"({len(rows)} songs)")
   if args.out:
     pathlib.Path(args.out).write_text(json.dumps({"off_level": off, "windows": n, "octave_flips": flips,
-                                                  "rows": rows}, indent=1))
+                                                  "octave_mismatches": mism, "rows": rows}, indent=1))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,58 @@
+"""training.eval.engine_suite: lanes split the seeds, the summary aggregates draws and tempo lanes."""
+import json
+import math
+import pathlib
+
+from training.eval import engine_suite as es
+
+
+def _metrics(fid_k, div_k):
+  row = {"fid_k": fid_k, "fid_g": 2 * fid_k, "div_k": div_k, "div_g": 7.0, "pfc": 0.03, "jitter": 160.0}
+  real = {"fid_k": 6.0, "fid_g": 3.4, "div_k": 8.0, "div_g": 7.0, "pfc": 0.015, "jitter": 120.0}
+  return {es.MODEL_ROW: row, "real (validation)": real}
+
+
+def _tempo(seeds, ratios, pooled):
+  rows = [{"id": mid, "seed": s, "ratio": r} for (mid, s), r in zip(
+      [(m, s) for m in ("a", "b") for s in seeds], ratios)]
+  return {"seeds": seeds, "rows": rows,
+          "pooled_rows": [{"id": m, "ratio": p, "perfect_follower_ratios": [0.9, float("nan")]}
+                          for m, p in zip(("a", "b"), pooled)]}
+
+
+def test_tempo_lanes_take_every_seed_once():
+  cmds = es.tempo_commands("m.dncw", pathlib.Path("/o"), seeds=5, lanes=2, passthrough=["--top-p", "0.9"])
+  seeds = []
+  for report, cmd in cmds:
+    i = cmd.index("--seeds")
+    seeds += [int(x) for x in cmd[i + 1:cmd.index("--out")]]
+    assert cmd[-2:] == ["--top-p", "0.9"]
+  assert sorted(seeds) == [0, 1, 2, 3, 4]
+  assert [r.name for r, _ in cmds] == ["tempo_0.json", "tempo_1.json"]
+
+
+def test_summary_means_and_diversity_band(tmp_path):
+  for s, (fid, div) in enumerate([(10.0, 8.0), (20.0, 9.0)]):
+    (tmp_path / f"s{s}").mkdir()
+    (tmp_path / f"s{s}" / "metrics.json").write_text(json.dumps(_metrics(fid, div)))
+  (tmp_path / "tempo_0.json").write_text(json.dumps(_tempo([0, 2], [1.0, 0.5, 1.0, float("nan")], [1.0, 0.8])))
+  (tmp_path / "tempo_1.json").write_text(json.dumps(_tempo([1], [0.0, 1.0], [0.6, 1.2])))
+  s = es.summarize(tmp_path)
+  assert s["draw_mean"]["fid_k"] == 15.0 and s["draw_mean"]["fid_g"] == 30.0
+  assert s["div_inside_20pct"]  # 8 and 9 against 8: inside
+  t = s["tempo"]
+  assert t["seeds"] == [0, 1, 2] and t["runs"] == 6 and t["finite_runs"] == 5
+  assert math.isclose(t["mean_ratio"], (1.0 + 0.5 + 1.0 + 0.0 + 1.0) / 5)
+  assert math.isclose(t["per_song"]["a"], (1.0 + 0.5 + 0.0) / 3)
+  # pooled: lane ratios weighted by the lane's seed count (2 and 1)
+  assert math.isclose(t["pooled_per_song"]["a"], (2 * 1.0 + 0.6) / 3)
+  assert math.isclose(t["pooled_per_song"]["b"], (2 * 0.8 + 1.2) / 3)
+  assert t["perfect_follower_mean_ratio"] == 0.9
+  assert "| seed 1 | 20 |" in es.markdown(s, "m")
+
+
+def test_summary_flags_a_draw_outside_the_band(tmp_path):
+  (tmp_path / "s0").mkdir()
+  (tmp_path / "s0" / "metrics.json").write_text(json.dumps(_metrics(10.0, 6.0)))  # 6 vs 8: -25 %
+  assert not es.summarize(tmp_path)["div_inside_20pct"]
+  assert "tempo" not in es.summarize(tmp_path)

@@ -1,0 +1,170 @@
+"""One model's full engine measurement: several metric-table draws and tempo following over many seeds.
+
+    .venv/bin/python -m training.eval.engine_suite --model M --out-dir D [--draws 6] [--tempo-seeds 16]
+        [--lanes 2] [--summarize-only]
+
+Runs `training.eval.engine_eval` once per draw seed (0 .. draws-1) into D/s<seed>/ and
+`training.eval.engine_tempo` on seeds 0 .. tempo-seeds-1 split over the lanes (D/tempo_<lane>.json), `lanes`
+processes at a time (the engine is single-threaded; two lanes fill this machine's two cores), then writes
+D/summary.json and D/summary.md: every draw's FID_k, FID_g, Div_k, Div_g, PFC and jitter with their means,
+and the tempo ratio per run over all seeds (mean, bootstrap s.e., median), per song, seeds pooled, and the
+ideal-follower calibration. A draw or lane whose output already exists is not run again, so a stopped
+suite resumes; --summarize-only only aggregates what is there. Both tools honour DANCE_BUILD_DIR.
+
+One draw is statistically weak: FID_k of one model varies 16-40 over seeds, the per-run tempo ratio has an
+s.e. of ~0.1 on 8 seeds. Compare models on this suite, not on one run.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import re
+import subprocess
+import sys
+
+import numpy as np
+
+from training.eval.engine_tempo import bootstrap_se
+
+METRICS = ("fid_k", "fid_g", "div_k", "div_g", "pfc", "jitter")
+MODEL_ROW = "model (engine)"
+
+
+def draw_commands(model: str, out: pathlib.Path, draws: int, passthrough: list[str]) -> list[tuple[pathlib.Path, list[str]]]:
+  """(output that marks it done, command) per metric draw."""
+  return [(out / f"s{s}" / "metrics.json",
+           [sys.executable, "-m", "training.eval.engine_eval", "--model", model, "--seed", str(s),
+            "--out-dir", str(out / f"s{s}")] + passthrough) for s in range(draws)]
+
+
+def tempo_commands(model: str, out: pathlib.Path, seeds: int, lanes: int,
+                   passthrough: list[str]) -> list[tuple[pathlib.Path, list[str]]]:
+  """(report path, command) per lane; lane k takes seeds k, k + lanes, ... (balanced)."""
+  cmds = []
+  for lane in range(lanes):
+    lane_seeds = [str(s) for s in range(lane, seeds, lanes)]
+    if lane_seeds:
+      report = out / f"tempo_{lane}.json"
+      cmds.append((report, [sys.executable, "-m", "training.eval.engine_tempo", "--model", model, "--seeds",
+                            *lane_seeds, "--out", str(report)] + passthrough))
+  return cmds
+
+
+def run_parallel(jobs: list[tuple[pathlib.Path, list[str]]], lanes: int) -> None:
+  """Runs the jobs whose output is missing, `lanes` at a time; each logs beside its output. Raises if any
+  fails (after the others finish)."""
+  todo = [(done, cmd) for done, cmd in jobs if not done.exists()]
+  running: list[tuple[pathlib.Path, subprocess.Popen]] = []
+  failed = []
+  while todo or running:
+    while todo and len(running) < lanes:
+      done, cmd = todo.pop(0)
+      done.parent.mkdir(parents=True, exist_ok=True)
+      log = open(done.with_suffix(".log"), "w")
+      print("engine_suite: " + " ".join(cmd[1:]), flush=True)
+      running.append((done, subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)))
+    done, proc = running.pop(0)
+    if proc.wait() != 0 or not done.exists():
+      failed.append(str(done.with_suffix(".log")))
+  if failed:
+    raise RuntimeError("engine_suite: failed, see " + ", ".join(failed))
+
+
+def summarize(out: pathlib.Path) -> dict:
+  """Aggregates D/s*/metrics.json and D/tempo_*.json (whatever exists)."""
+  draws = {}
+  paths = [p for p in out.glob("s*/metrics.json") if re.fullmatch(r"s\d+", p.parent.name)]
+  for path in sorted(paths, key=lambda p: int(p.parent.name[1:])):
+    rows = json.loads(path.read_text())
+    draws[int(path.parent.name[1:])] = {k: rows[MODEL_ROW][k] for k in METRICS}
+    real = {k: rows["real (validation)"][k] for k in METRICS}
+  summary: dict = {"draws": draws}
+  if draws:
+    summary["draw_mean"] = {k: float(np.mean([d[k] for d in draws.values()])) for k in METRICS}
+    # The issue's diversity band: within 20 % of the real dances' on every draw.
+    summary["real"] = real
+    summary["div_inside_20pct"] = all(abs(d[k] / real[k] - 1) <= 0.2 for d in draws.values() for k in ("div_k", "div_g"))
+  rows, pooled, cal, seeds = [], [], [], []
+  for path in sorted(out.glob("tempo_*.json")):
+    rep = json.loads(path.read_text())
+    rows += rep["rows"]
+    seeds += rep["seeds"]
+    pooled += [(r["id"], r["ratio"], len(rep["seeds"])) for r in rep["pooled_rows"]]
+    cal += [c for r in rep["pooled_rows"] for c in r.get("perfect_follower_ratios", []) if np.isfinite(c)]
+  if rows:
+    ratios = [r["ratio"] for r in rows if np.isfinite(r["ratio"])]
+    per_song: dict[str, list[float]] = {}
+    for r in rows:
+      if np.isfinite(r["ratio"]):
+        per_song.setdefault(r["id"], []).append(r["ratio"])
+    # Pooled ratios are per lane (the seeds of one lane pooled); averaged over lanes, weighted by seeds.
+    pooled_song: dict[str, list[tuple[float, int]]] = {}
+    for mid, ratio, n in pooled:
+      if np.isfinite(ratio):
+        pooled_song.setdefault(mid, []).append((ratio, n))
+    summary["tempo"] = {
+        "seeds": sorted(seeds), "runs": len(rows), "finite_runs": len(ratios),
+        "mean_ratio": float(np.mean(ratios)), "mean_ratio_se": bootstrap_se(ratios),
+        "median_ratio": float(np.median(ratios)),
+        "per_song": {m: float(np.mean(v)) for m, v in sorted(per_song.items())},
+        "pooled_per_song": {m: float(sum(r * n for r, n in v) / sum(n for _, n in v))
+                            for m, v in sorted(pooled_song.items())},
+        "perfect_follower_mean_ratio": float(np.mean(cal)) if cal else None}
+    ps = summary["tempo"]["pooled_per_song"]
+    summary["tempo"]["pooled_mean_ratio"] = float(np.mean(list(ps.values()))) if ps else None
+  return summary
+
+
+def markdown(summary: dict, model: str) -> str:
+  lines = [f"# engine suite: {model}", ""]
+  if summary["draws"]:
+    lines += ["| draw | " + " | ".join(METRICS) + " |", "|---" * (len(METRICS) + 1) + "|"]
+    for s, d in summary["draws"].items():
+      lines.append(f"| seed {s} | " + " | ".join(f"{d[k]:.4g}" for k in METRICS) + " |")
+    lines.append("| **mean** | " + " | ".join(f"{summary['draw_mean'][k]:.4g}" for k in METRICS) + " |")
+    lines.append("| real (validation) | " + " | ".join(f"{summary['real'][k]:.4g}" for k in METRICS) + " |")
+    lines += ["", f"Div_k and Div_g within 20 % of real on every draw: {summary['div_inside_20pct']}", ""]
+  t = summary.get("tempo")
+  if t:
+    se = t["mean_ratio_se"]
+    lines += [f"Tempo following over {len(t['seeds'])} seeds ({t['finite_runs']}/{t['runs']} runs): per run mean "
+              f"**{t['mean_ratio']:.3f}** (s.e. {se:.3f}), median {t['median_ratio']:.3f}; seeds pooled "
+              f"{t['pooled_mean_ratio']:.3f}; ideal follower with this spread {t['perfect_follower_mean_ratio']:.3f}",
+              "", "| song | per run | pooled |", "|---|---|---|"]
+    for m, v in t["per_song"].items():
+      lines.append(f"| {m} | {v:.3f} | {t['pooled_per_song'].get(m, float('nan')):.3f} |")
+  return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> None:
+  ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  ap.add_argument("--model", required=True)
+  ap.add_argument("--out-dir", required=True)
+  ap.add_argument("--draws", type=int, default=6)
+  ap.add_argument("--tempo-seeds", type=int, default=16)
+  ap.add_argument("--lanes", type=int, default=2)
+  ap.add_argument("--summarize-only", action="store_true")
+  ap.add_argument("--temperature", type=float, default=None)
+  ap.add_argument("--guidance", type=float, default=None)
+  ap.add_argument("--top-p", type=float, default=None)
+  ap.add_argument("--period-lock", type=float, default=None)
+  args = ap.parse_args(argv)
+  out = pathlib.Path(args.out_dir)
+  out.mkdir(parents=True, exist_ok=True)
+  passthrough = []
+  for flag in ("temperature", "guidance", "top_p", "period_lock"):
+    if getattr(args, flag) is not None:
+      passthrough += ["--" + flag.replace("_", "-"), str(getattr(args, flag))]
+  if not args.summarize_only:
+    run_parallel(draw_commands(args.model, out, args.draws, passthrough), args.lanes)
+    run_parallel(tempo_commands(args.model, out, args.tempo_seeds, args.lanes, passthrough), args.lanes)
+  summary = summarize(out)
+  (out / "summary.json").write_text(json.dumps(summary, indent=1))
+  text = markdown(summary, args.model)
+  (out / "summary.md").write_text(text)
+  print(text)
+
+
+if __name__ == "__main__":
+  main()
