@@ -44,12 +44,15 @@ def stage_vq(args, run: pathlib.Path, log: Logger) -> dict:
   from training.train_vq import train_vq, validation_report
   split = td.load_split()
   train = [td.load_clip(i, with_music=False) for i in split["train"]]
+  if args.vq_mirror:  # every training dance also reflected left-right (skeleton.mirror_positions)
+    train += [td.load_clip(i, with_music=False, mirror=True) for i in split["train"]]
   val = [td.load_clip(i, with_music=False) for i in split["validation"]]
   log(f"vq: {len(train)} train clips ({sum(len(c.upper) for c in train)} frames), {len(val)} validation")
   vqs = {}
   for part, dim in (("upper", 45), ("lower", 31)):
     cfg = VQConfig(in_dim=dim, width=args.vq_width, code_dim=args.vq_code_dim,
-                   codebook_size=args.codebook_size, path_weight=args.vq_path_weight)
+                   codebook_size=args.codebook_size, path_weight=args.vq_path_weight,
+                   vel_weight=args.vq_vel_weight, acc_weight=args.vq_acc_weight)
     arrays = [getattr(c, part) for c in train]
     vqs[part], hist = train_vq(part, arrays, cfg, args.vq_iters, run / f"vq_{part}.pt", log)
     (run / f"vq_{part}_history.json").write_text(json.dumps(hist))
@@ -101,6 +104,15 @@ def main(argv=None) -> int:
   ap.add_argument("--codebook-size", type=int, default=512)
   ap.add_argument("--vq-path-weight", type=float, default=0.0,
                   help="lower-body VQ-VAE: weight of the integrated root path loss (train_vq.vq_loss)")
+  ap.add_argument("--mirror", action="store_true",
+                  help="augment the sequence model's training dances with their left-right mirror images on "
+                       "the same music (the validation set is never mirrored)")
+  ap.add_argument("--vq-mirror", action="store_true",
+                  help="augment the VQ-VAEs' training motion with its left-right mirror images")
+  ap.add_argument("--vq-vel-weight", type=float, default=1.0,
+                  help="VQ-VAEs: weight of the velocity term of the reconstruction loss")
+  ap.add_argument("--vq-acc-weight", type=float, default=1.0,
+                  help="VQ-VAEs: weight of the acceleration term of the reconstruction loss")
   ap.add_argument("--seq-iters", type=int, default=1000,
                   help="iterations of the sequence model (the tempo-normalised phase when pretraining; "
                        "also the default of fixed-rate runs, --tempo-ref 0)")

@@ -18,6 +18,7 @@ import pathlib
 import numpy as np
 
 from training.data import representation as rep
+from training.data.skeleton import mirror_positions
 from training.eval.music import stretch_audio
 from training.eval.tempo import time_stretch_motion
 from training.features.extract import extract_clock, extract_features
@@ -69,9 +70,12 @@ def music_for(audio_path: str, factor: float) -> dict:
   return extract_features(dst, cache_dir=FEATURE_CACHE)
 
 
-def load_clip(motion_id: str, factor: float = 1.0, with_music: bool = True) -> Clip:
+def load_clip(motion_id: str, factor: float = 1.0, with_music: bool = True, mirror: bool = False) -> Clip:
+  """mirror: the dance reflected left-right (skeleton.mirror_positions), on the same music."""
   z = np.load(MOTION_CACHE / f"{motion_id}.npz")
   pos = z["positions"].astype(np.float64)
+  if mirror:
+    pos = mirror_positions(pos)
   if abs(factor - 1.0) > 1e-6:
     pos = time_stretch_motion(pos, factor)
   upper, lower = rep.encode(pos)
@@ -131,16 +135,20 @@ def bar_beats_of(style: str, bar_clock: dict | None) -> int:
   return int(bar_clock.get("style_beats_per_bar", {}).get(style, bar_clock["beats_per_bar"]))
 
 
-def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int = 4, bar_beats: int = 0) -> Clip:
+def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int = 4, bar_beats: int = 0,
+                     mirror: bool = False) -> Clip:
   """A paired dance on the tempo-normalised timeline of the engine's TempoClock (docs/model.md section 8):
   warped frame j takes the features and PRE of its source frame and the motion at its real position
   (linear interpolation of joint positions), so every song plays at `reference_bpm`. The clip starts at
   the first step boundary (a multiple of frames_per_step on the song's warped timeline, as the engine's
   steps) at or after the dance's first frame and ends where the dance or the music ends. bar_beats > 0: the
   `bar_phase` features are the bar clock's (the engine's audio::BarClockPhase of warped frame j, from
-  `dance-features --clock --bar-beats`), as a session of a model with a bar clock sees them."""
+  `dance-features --clock --bar-beats`), as a session of a model with a bar clock sees them. mirror: the
+  dance reflected left-right (skeleton.mirror_positions)."""
   z = np.load(MOTION_CACHE / f"{motion_id}.npz")
   pos = z["positions"].astype(np.float64)
+  if mirror:
+    pos = mirror_positions(pos)
   audio = str(z["audio_path"])
   if not pathlib.Path(audio).is_absolute():
     audio = str((REPO / audio).resolve())

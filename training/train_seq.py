@@ -40,26 +40,31 @@ def tokenize(clip: td.Clip, vqs) -> dict:
 
 
 def build_tokens(ids, factors, vqs, log, cache: pathlib.Path | None = None,
-                 style_refs: dict[str, float] | None = None, bar_clock: dict | None = None) -> list[dict]:
+                 style_refs: dict[str, float] | None = None, bar_clock: dict | None = None,
+                 mirror: bool = False) -> list[dict]:
   """Tokens of every (clip, factor); cached in `cache` (a file next to the VQ-VAE checkpoints) if given.
   style_refs: clips on the engine's tempo-normalised timeline (train_data.load_warped_clip) at their
   style's reference tempo, one per song (the clock removes the tempo, so tempo factors are not used).
-  bar_clock (with style_refs): the bar phase features are the bar clock's (train_data.BAR_CLOCK)."""
+  bar_clock (with style_refs): the bar phase features are the bar clock's (train_data.BAR_CLOCK).
+  mirror: every clip also reflected left-right (skeleton.mirror_positions) on the same music: twice the
+  dances, the turns and the arm styling in both directions."""
   if style_refs:
     factors = (1.0,)
   if cache is not None and cache.is_file():
     toks = torch.load(cache)
-    if sorted({t["id"] for t in toks}) == sorted(ids) and sorted({t["factor"] for t in toks}) == sorted(factors):
+    if (sorted({t["id"] for t in toks}) == sorted(ids) and sorted({t["factor"] for t in toks}) == sorted(factors)
+        and {t.get("mirror", False) for t in toks} == ({False, True} if mirror else {False})):
       return toks
   toks = []
   for i in tqdm(ids, desc="tokens", mininterval=10):
     for f in factors:
-      if style_refs:
-        style = str(np.load(td.MOTION_CACHE / f"{i}.npz")["style"])
-        clip = td.load_warped_clip(i, style_refs[style], bar_beats=td.bar_beats_of(style, bar_clock))
-      else:
-        clip = td.load_clip(i, f)
-      toks.append(tokenize(clip, vqs))
+      for m in ((False, True) if mirror else (False,)):
+        if style_refs:
+          style = str(np.load(td.MOTION_CACHE / f"{i}.npz")["style"])
+          clip = td.load_warped_clip(i, style_refs[style], bar_beats=td.bar_beats_of(style, bar_clock), mirror=m)
+        else:
+          clip = td.load_clip(i, f, mirror=m)
+        toks.append(dict(tokenize(clip, vqs), mirror=m))
   log(f"tokens: {len(toks)} clips, {sum(len(t['upper']) for t in toks)} steps")
   if cache is not None:
     torch.save(toks, cache)
@@ -180,7 +185,9 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
   bars = bar_clock_of(args)
   tag = warp_tag(refs, bars) if refs else "_".join(f"{f:g}" for f in factors)
   vq_dir.mkdir(parents=True, exist_ok=True)
-  train_toks = build_tokens(train_ids, factors, vqs, log, vq_dir / f"tokens_train_{tag}.pt", refs, bars)
+  mirror = bool(getattr(args, "mirror", False))
+  train_toks = build_tokens(train_ids, factors, vqs, log,
+                            vq_dir / f"tokens_train_{tag}{'_mirror' if mirror else ''}.pt", refs, bars, mirror)
   val_toks = build_tokens(val_ids, (1.0,), vqs, log, vq_dir / f"tokens_val_{tag}.pt", refs, bars)
   torch.manual_seed(0)
   rng = np.random.default_rng(0)

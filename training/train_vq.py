@@ -39,8 +39,8 @@ def vq_loss(vq: PoseVQVAE, x: torch.Tensor, part: str) -> tuple[torch.Tensor, di
   vel = F.smooth_l1_loss(recon[:, 1:] - recon[:, :-1], xn[:, 1:] - xn[:, :-1])
   acc = F.smooth_l1_loss(recon[:, 2:] - 2 * recon[:, 1:-1] + recon[:, :-2],
                          xn[:, 2:] - 2 * xn[:, 1:-1] + xn[:, :-2])
-  loss = rec + vel + acc + vq.cfg.commit_weight * commit
-  logs = {"rec": float(rec), "vel": float(vel), "commit": float(commit)}
+  loss = rec + vq.cfg.vel_weight * vel + vq.cfg.acc_weight * acc + vq.cfg.commit_weight * commit
+  logs = {"rec": float(rec), "vel": float(vel), "acc": float(acc), "commit": float(commit)}
   if part == "lower":
     th_r, p_r = integrate_root_torch(vq.denormalise(recon))
     th_x, p_x = integrate_root_torch(x)

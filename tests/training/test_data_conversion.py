@@ -171,3 +171,34 @@ def test_every_source_take_converts_cleanly():
       assert np.linalg.norm(np.diff(p[:, 0], axis=0), axis=-1).max() < 0.25, motion_id   # < 7.5 m/s
       n += 1
   assert n == 70
+
+
+def test_mirror_swaps_sides_turns_the_other_way_and_keeps_the_skeleton():
+  from training.data import representation as rep
+  skel = sk.load_skeleton()
+  rest = skel.rest_positions()
+  t = np.arange(60) / 30.0
+  # A body walking forward along +Z while turning left (yaw increasing) and raising its left hand.
+  yaw = 0.5 * t
+  pos = np.einsum("tij,nj->tni", rep.rot_y(yaw), rest)
+  pos[:, :, 2] += 0.4 * t[:, None]
+  pos[:, :, 1] += 1.0
+  pos[:, J["left_wrist"], 1] += 0.2 * t
+  pos = sk.project_bone_lengths(pos, skel)
+  m = sk.mirror_positions(pos, skel)
+  # Canonical bone lengths kept (the canonical left and right bones differ by ~1 cm).
+  d = np.linalg.norm(m[:, 1:] - m[:, skel.parents[1:]], axis=-1)
+  assert np.allclose(d, skel.bone_lengths[1:][None], atol=1e-9)
+  # The raised hand is now the right one, on the mirrored side.
+  assert m[-1, J["right_wrist"], 1] > m[-1, J["left_wrist"], 1] + 0.1
+  assert np.isclose(m[-1, J["right_wrist"], 0], -pos[-1, J["left_wrist"], 0], atol=0.02)
+  # It turns right as much as the original turned left, and still walks forward (up to the facing's
+  # small change when the hips and shoulders go back on the canonical lengths).
+  _, low = rep.encode(pos)
+  _, low_m = rep.encode(m)
+  assert np.allclose(low_m[1:, rep.ROOT_YAW_RATE], -low[1:, rep.ROOT_YAW_RATE], atol=1e-4)
+  assert np.allclose(low_m[:, rep.ROOT_VZ], low[:, rep.ROOT_VZ], atol=1e-4)
+  assert np.allclose(low_m[:, rep.ROOT_VX], -low[:, rep.ROOT_VX], atol=1e-4)
+  assert np.abs(low[1:, rep.ROOT_YAW_RATE]).min() > 0.01 and np.abs(low[1:, rep.ROOT_VX]).max() > 0.002
+  # Twice is the identity on canonical-skeleton motion.
+  assert np.allclose(sk.mirror_positions(m, skel), pos, atol=1e-9)

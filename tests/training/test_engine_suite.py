@@ -16,7 +16,7 @@ def _tempo(seeds, ratios, pooled):
   rows = [{"id": mid, "seed": s, "ratio": r} for (mid, s), r in zip(
       [(m, s) for m in ("a", "b") for s in seeds], ratios)]
   return {"seeds": seeds, "rows": rows,
-          "pooled_rows": [{"id": m, "ratio": p, "perfect_follower_ratios": [0.9, float("nan")]}
+          "pooled_rows": [{"id": m, "ratio": p, "perfect_follower_ratios": [0.9, float("nan"), None]}
                           for m, p in zip(("a", "b"), pooled)]}
 
 

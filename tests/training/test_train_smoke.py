@@ -103,3 +103,19 @@ def test_vq_path_weight_scales_only_the_root_path_term():
   assert path > 0
   assert abs(float(losses[1.0][0]) - float(losses[0.0][0]) - path) < 1e-5
   assert abs(float(losses[3.0][0]) - float(losses[0.0][0]) - 3 * path) < 1e-5
+
+
+def test_vq_vel_and_acc_weights_scale_their_terms():
+  from training.model.vqvae import PoseVQVAE
+  from training.train_vq import vq_loss
+  x = torch.randn(2, 16, 45) * 0.05
+  out = {}
+  for vw, aw in ((1.0, 1.0), (3.0, 1.0), (1.0, 4.0)):
+    torch.manual_seed(1)
+    vq = PoseVQVAE(VQConfig(in_dim=45, width=8, code_dim=4, codebook_size=8, vel_weight=vw, acc_weight=aw))
+    vq.eval()
+    out[(vw, aw)] = vq_loss(vq, x, "upper")
+  base, logs = out[(1.0, 1.0)]
+  assert logs["vel"] > 0 and logs["acc"] > 0
+  assert abs(float(out[(3.0, 1.0)][0]) - float(base) - 2 * logs["vel"]) < 1e-5
+  assert abs(float(out[(1.0, 4.0)][0]) - float(base) - 3 * logs["acc"]) < 1e-5

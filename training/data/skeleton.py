@@ -30,6 +30,19 @@ LOWER_JOINTS = (0, 1, 2, 4, 5, 7, 8, 10, 11)  # 9
 LEFT_JOINTS = tuple(i for i, n in enumerate(JOINT_NAMES) if n.startswith("left_"))
 RIGHT_JOINTS = tuple(i for i, n in enumerate(JOINT_NAMES) if n.startswith("right_"))
 FOOT_JOINTS = (7, 8, 10, 11)  # ankles and feet (toes): the joints that touch the floor
+# Joint j of a mirrored body is joint MIRROR[j] of the original (left and right swapped, the rest kept).
+MIRROR = tuple(J[n.replace("left_", "right_")] if n.startswith("left_") else
+               J[n.replace("right_", "left_")] if n.startswith("right_") else i for i, n in enumerate(JOINT_NAMES))
+
+
+def mirror_positions(positions: np.ndarray, skel: "Skeleton | None" = None) -> np.ndarray:
+  """(..., 24, 3) -> the same motion reflected through the body's sagittal plane x = 0 (x negated) with
+  left and right swapped: a dance turning left becomes one turning right, still on Y up, facing +Z at rest
+  with its left at +X. The canonical left and right bones differ by up to 1 cm, so the result is put back on
+  `skel`'s lengths (default: the canonical skeleton). Training augmentation (training.train --mirror)."""
+  out = np.asarray(positions, dtype=np.float64)[..., list(MIRROR), :].copy()
+  out[..., 0] = -out[..., 0]
+  return project_bone_lengths(out, skel if skel is not None else load_skeleton())
 
 
 @dataclasses.dataclass(frozen=True)

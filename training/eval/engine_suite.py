@@ -27,6 +27,10 @@ import numpy as np
 
 from training.eval.engine_tempo import bootstrap_se
 
+def _finite(x) -> bool:
+  return x is not None and bool(np.isfinite(x))
+
+
 METRICS = ("fid_k", "fid_g", "div_k", "div_g", "pfc", "jitter")
 MODEL_ROW = "model (engine)"
 
@@ -91,17 +95,17 @@ def summarize(out: pathlib.Path) -> dict:
     rows += rep["rows"]
     seeds += rep["seeds"]
     pooled += [(r["id"], r["ratio"], len(rep["seeds"])) for r in rep["pooled_rows"]]
-    cal += [c for r in rep["pooled_rows"] for c in r.get("perfect_follower_ratios", []) if np.isfinite(c)]
+    cal += [c for r in rep["pooled_rows"] for c in r.get("perfect_follower_ratios", []) if _finite(c)]
   if rows:
-    ratios = [r["ratio"] for r in rows if np.isfinite(r["ratio"])]
+    ratios = [r["ratio"] for r in rows if _finite(r["ratio"])]
     per_song: dict[str, list[float]] = {}
     for r in rows:
-      if np.isfinite(r["ratio"]):
+      if _finite(r["ratio"]):
         per_song.setdefault(r["id"], []).append(r["ratio"])
     # Pooled ratios are per lane (the seeds of one lane pooled); averaged over lanes, weighted by seeds.
     pooled_song: dict[str, list[tuple[float, int]]] = {}
     for mid, ratio, n in pooled:
-      if np.isfinite(ratio):
+      if _finite(ratio):
         pooled_song.setdefault(mid, []).append((ratio, n))
     summary["tempo"] = {
         "seeds": sorted(seeds), "runs": len(rows), "finite_runs": len(ratios),
