@@ -98,7 +98,7 @@ def main(argv=None) -> int:
   ap.add_argument("--run", default=str(REPO / "training" / "runs" / "default"))
   ap.add_argument("--stages", default="data,vq,seq,export,eval")
   ap.add_argument("--threads", type=int, default=2)
-  ap.add_argument("--vq-iters", type=int, default=3000)
+  ap.add_argument("--vq-iters", type=int, default=6000)
   ap.add_argument("--vq-width", type=int, default=128)
   ap.add_argument("--vq-code-dim", type=int, default=64)
   ap.add_argument("--codebook-size", type=int, default=512)
@@ -109,9 +109,9 @@ def main(argv=None) -> int:
                        "the same music (the validation set is never mirrored)")
   ap.add_argument("--vq-mirror", action="store_true",
                   help="augment the VQ-VAEs' training motion with its left-right mirror images")
-  ap.add_argument("--vq-vel-weight", type=float, default=1.0,
+  ap.add_argument("--vq-vel-weight", type=float, default=4.0,
                   help="VQ-VAEs: weight of the velocity term of the reconstruction loss")
-  ap.add_argument("--vq-acc-weight", type=float, default=1.0,
+  ap.add_argument("--vq-acc-weight", type=float, default=4.0,
                   help="VQ-VAEs: weight of the acceleration term of the reconstruction loss")
   ap.add_argument("--seq-iters", type=int, default=1000,
                   help="iterations of the sequence model (the tempo-normalised phase when pretraining; "
