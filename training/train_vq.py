@@ -1,7 +1,9 @@
 """Pose VQ-VAE training (upper and lower body) and its validation report.
 
 Losses (Bailando's recipe): smooth-L1 reconstruction of the normalised features, their velocity and
-acceleration, commitment. For the lower body an optional term (`VQConfig.path_weight`, default 0) adds the
+acceleration (weighted by `VQConfig.vel_weight` / `acc_weight`; training.train's defaults are 4 since
+2026-12-03: at weight 1 those terms were an order of magnitude below the position term and the decoder kept
+only 74-79 % of the real acceleration RMS, docs/training.md), commitment. For the lower body an optional term (`VQConfig.path_weight`, default 0) adds the
 integrated root path and heading error over the whole window (metres, radians). It was on (weight 1) until
 2026-12-02 and was measured to cost most of the lower body's pose accuracy for little less drift
 (docs/training.md, "The VQ-VAE's root path loss"), so it is off.
