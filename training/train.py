@@ -3,7 +3,8 @@
     OMP_WAIT_POLICY=PASSIVE /usr/bin/python3 -m training.train            # everything, resumable
     /usr/bin/python3 -m training.train --stages seq,eval,export --run training/runs/default
 
-Stages: data (motion cache, via training.data.prepare if missing), vq (both pose VQ-VAEs), seq (features,
+Stages: data (motion cache, via training.data.prepare if missing), vq (both pose VQ-VAEs), vqdec (their
+decoders fine-tuned with an energy-matching term, encoders and codebooks frozen: training.train_vq_decoder), seq (features,
 the engine's tempo clock (--tempo-ref, default 105 BPM: the dance is learned in tempo-normalised time;
 --tempo-ref 0 = the fixed-rate model with tempo augmentation), tokens, the Danceba model), export
 (models/default.dncw + tests/golden/default), eval (losses, music-ablation gap; tempo following and the
@@ -62,11 +63,41 @@ def stage_vq(args, run: pathlib.Path, log: Logger) -> dict:
   return report
 
 
-def load_vqs(run: pathlib.Path):
+def stage_vqdec(args, run: pathlib.Path, log: Logger) -> dict:
+  """Fine-tunes the decoders of <run>/vq_{part}.pt with the energy term (training.train_vq_decoder) into
+  <run>/vqdec_{part}.pt (a part already written is skipped); the encoders and codebooks, and so the codes,
+  are unchanged. Writes <run>/vqdec_report.json (the validation report of the fine-tuned pair)."""
+  from training.train_vq import validation_report
+  from training.train_vq_decoder import finetune_decoder, training_arrays
+  vqs = load_vqs(run, fine_tuned=False)
+  for part in ("upper", "lower"):
+    path = run / f"vqdec_{part}.pt"
+    if path.is_file():
+      continue
+    vq = vqs[part]
+    t0 = time.time()
+    hist = finetune_decoder(vq, part, training_arrays(part, args.vq_mirror), args.vq_dec_iters,
+                            args.vq_energy_weight, lr=args.vq_dec_lr, log=log)
+    tmp = path.with_suffix(".tmp")
+    torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict(), "history": hist, "iter": args.vq_dec_iters,
+                "finetune": {"energy_weight": args.vq_energy_weight, "lr": args.vq_dec_lr}}, tmp)
+    os.replace(tmp, path)
+    log(f"vqdec-{part}: {args.vq_dec_iters} iterations in {time.time() - t0:.0f} s -> {path}")
+  val = [td.load_clip(i, with_music=False) for i in td.load_split()["validation"]]
+  report = validation_report(load_vqs(run), val)
+  report["energy_weight"], report["iters"] = args.vq_energy_weight, args.vq_dec_iters
+  log(f"vqdec validation: {json.dumps(report)}")
+  (run / "vqdec_report.json").write_text(json.dumps(report, indent=1))
+  return report
+
+
+def load_vqs(run: pathlib.Path, fine_tuned: bool = True):
+  """The run's VQ-VAEs; with fine_tuned, a part's vqdec_{part}.pt (decoder fine-tuned) when it exists."""
   from training.model.vqvae import PoseVQVAE
   vqs = {}
   for part in ("upper", "lower"):
-    ck = torch.load(run / f"vq_{part}.pt")
+    path = run / f"vqdec_{part}.pt"
+    ck = torch.load(path if fine_tuned and path.is_file() else run / f"vq_{part}.pt")
     vq = PoseVQVAE(VQConfig.from_dict(ck["cfg"]))
     vq.load_state_dict(ck["model"])
     vqs[part] = vq.eval()
@@ -96,7 +127,7 @@ def pretrain_seq(args, cfg, vqs, factors, run: pathlib.Path, vq_run: pathlib.Pat
 def main(argv=None) -> int:
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   ap.add_argument("--run", default=str(REPO / "training" / "runs" / "default"))
-  ap.add_argument("--stages", default="data,vq,seq,export,eval")
+  ap.add_argument("--stages", default="data,vq,vqdec,seq,export,eval")
   ap.add_argument("--threads", type=int, default=2)
   ap.add_argument("--vq-iters", type=int, default=6000)
   ap.add_argument("--vq-width", type=int, default=128)
@@ -113,6 +144,11 @@ def main(argv=None) -> int:
                   help="VQ-VAEs: weight of the velocity term of the reconstruction loss")
   ap.add_argument("--vq-acc-weight", type=float, default=4.0,
                   help="VQ-VAEs: weight of the acceleration term of the reconstruction loss")
+  ap.add_argument("--vq-dec-iters", type=int, default=1500,
+                  help="vqdec stage: iterations per decoder of the energy fine-tuning (0: no fine-tuning)")
+  ap.add_argument("--vq-energy-weight", type=float, default=0.3,
+                  help="vqdec stage: weight of the energy-matching term (training.train_vq_decoder.energy_loss)")
+  ap.add_argument("--vq-dec-lr", type=float, default=1e-4, help="vqdec stage: learning rate")
   ap.add_argument("--seq-iters", type=int, default=1000,
                   help="iterations of the sequence model (the tempo-normalised phase when pretraining; "
                        "also the default of fixed-rate runs, --tempo-ref 0)")
@@ -139,6 +175,10 @@ def main(argv=None) -> int:
                   help="tempo-normalised runs: the engine's default period lock weight written into the model "
                        "(time_base.period_lock, with each style's dance period measured on the training dances; "
                        "docs/model.md section 7); 0 = off")
+  ap.add_argument("--period-lock-periods", default="1,2", metavar="UPPER,LOWER",
+                  help="tempo-normalised runs: how many dance periods back each stream's period lock reaches "
+                       "(time_base.period_lock_periods, integers 1..4; docs/model.md section 6); the lower "
+                       "body's 2 repeats a two-period figure such as the waltz's box step")
   ap.add_argument("--guidance", type=float, default=3.0,
                   help="the engine's default style guidance weight written into the model (sampling.guidance; "
                        "docs/model.md section 6); 1 = off")
@@ -156,6 +196,13 @@ def main(argv=None) -> int:
   args = ap.parse_args(argv)
   if not 0.0 <= args.period_lock <= 100.0:
     ap.error(f"--period-lock must be in [0, 100], got {args.period_lock}")
+  raw_periods = args.period_lock_periods
+  try:
+    args.period_lock_periods = [int(x) for x in raw_periods.split(",")]
+  except ValueError:
+    args.period_lock_periods = []
+  if len(args.period_lock_periods) != 2 or not all(1 <= n <= 4 for n in args.period_lock_periods):
+    ap.error(f"--period-lock-periods must be two integers in 1..4 (upper,lower), got '{raw_periods}'")
   if not 0.0 <= args.guidance <= 100.0:
     ap.error(f"--guidance must be in [0, 100], got {args.guidance}")
   torch.set_num_threads(args.threads)
@@ -170,6 +217,9 @@ def main(argv=None) -> int:
     td.ensure_motion_cache()
   if "vq" in stages and not (run / "vq_report.json").is_file():
     stage_vq(args, run, log)
+  if "vqdec" in stages and args.vq_dec_iters > 0 and not args.vq_run and not args.vq_model and \
+      not (run / "vqdec_report.json").is_file():
+    stage_vqdec(args, run, log)
   vq_run = pathlib.Path(args.vq_run) if args.vq_run else run
   if any(s in stages for s in ("seq", "eval", "export")):
     from training import train_seq

@@ -324,6 +324,23 @@ def stage_engine_eval(args, vqs, run: pathlib.Path, log) -> dict:
   return report
 
 
+def time_base_meta(args, run: pathlib.Path, log) -> dict:
+  """The exported model's time_base metadata (docs/model.md sections 1 and 6): fixed-rate, or tempo-normalised
+  with the style reference tempi, the bar clock if on, the dance periods and the period lock's default weight
+  and reach (periods back per stream)."""
+  if args.tempo_ref <= 0:
+    return {"kind": "fixed"}
+  tb = {"kind": "tempo", "reference_bpm": float(args.tempo_ref), "style_reference_bpm": style_refs_of(args, run, log)}
+  if bar_clock_of(args):
+    tb["bar_clock"] = bar_clock_of(args)
+  tb["dance_period_beats"] = dance_periods_of(args, run, log)
+  tb["period_lock"] = float(getattr(args, "period_lock", 0.0))
+  periods = getattr(args, "period_lock_periods", None)
+  if periods:
+    tb["period_lock_periods"] = {"upper": int(periods[0]), "lower": int(periods[1])}
+  return tb
+
+
 def stage_export(args, vqs, run: pathlib.Path, log) -> None:
   from training.export import export_model
   from training.fixtures import FEATURES_META, skeleton_meta, write_fixtures
@@ -332,16 +349,9 @@ def stage_export(args, vqs, run: pathlib.Path, log) -> None:
   model_id = getattr(args, "model_id", None) or out.stem + "-" + time.strftime("%Y%m%d")
   extra = {"model_id": model_id, "features": FEATURES_META,
            "skeleton": skeleton_meta(), "styles": td.STYLES, "training": {"run": str(run)},
-           "time_base": ({"kind": "tempo", "reference_bpm": float(args.tempo_ref),
-                          "style_reference_bpm": style_refs_of(args, run, log)} if args.tempo_ref > 0
-                         else {"kind": "fixed"})}
-  if bar_clock_of(args):
-    extra["time_base"]["bar_clock"] = bar_clock_of(args)
-  if args.tempo_ref > 0:
-    extra["time_base"]["dance_period_beats"] = dance_periods_of(args, run, log)
-    extra["time_base"]["period_lock"] = float(getattr(args, "period_lock", 0.0))
+           "time_base": time_base_meta(args, run, log)}
   extra["sampling"] = {"guidance": float(getattr(args, "guidance", 1.0))}
-  for name in ("vq_report.json", "eval_report.json"):
+  for name in ("vq_report.json", "vqdec_report.json", "eval_report.json"):
     if (run / name).is_file():
       extra["training"][name.removesuffix(".json")] = json.loads((run / name).read_text())
   export_model(str(out), model, vqs, extra, weights_dtype=args.weights_dtype)

@@ -168,6 +168,27 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
         }
         m->default_period_lock_ = static_cast<float>(lock);
       }
+      if (tb.contains("period_lock_periods")) {
+        // {"upper": n, "lower": n}: each stream's lock repeats the codes of n dance periods back (1..4).
+        const nlohmann::json& pp = tb["period_lock_periods"];
+        if (!pp.is_object()) {
+          return absl::InvalidArgumentError("weights metadata: time_base.period_lock_periods must be an object");
+        }
+        for (const auto& [name, value] : pp.items()) {
+          const int stream = name == "upper" ? 0 : name == "lower" ? 1 : -1;
+          if (stream < 0) {
+            return absl::InvalidArgumentError(absl::StrCat(
+                "weights metadata: time_base.period_lock_periods names unknown stream '", name,
+                "' (expected upper, lower)"));
+          }
+          const int n = value.is_number_integer() ? value.get<int>() : 0;
+          if (n < 1 || n > kMaxPeriodLockPeriods) {
+            return absl::InvalidArgumentError(absl::StrCat("weights metadata: time_base.period_lock_periods['", name,
+                                                           "'] must be an integer in 1..", kMaxPeriodLockPeriods));
+          }
+          m->period_lock_periods_[stream] = n;
+        }
+      }
     } else if (kind != "fixed") {
       return absl::InvalidArgumentError(
           absl::StrCat("weights metadata: unknown time_base '", tb.dump(), "' (expected kind fixed or tempo)"));

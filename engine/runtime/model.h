@@ -30,6 +30,9 @@ inline constexpr float kCrouchHeightFraction = 0.83f;
 // after 32 by up to 81 / 18 / 1.7 mm, after 16 by < 0.05 mm).
 inline constexpr int kCodeHeightSteps = 16;
 
+// The most dance periods a stream's period lock may reach back (time_base.period_lock_periods).
+inline constexpr int kMaxPeriodLockPeriods = 4;
+
 class Model {
  public:
   // Builds a model from validated weights (LoadModel = WeightsFile::Load + this).
@@ -76,6 +79,11 @@ class Model {
   // The period lock weight sessions use when SamplingOptions::period_lock is negative (metadata
   // "time_base": {..., "period_lock": B}, which needs dance_period_beats); 0 = off (models without it).
   float default_period_lock() const { return default_period_lock_; }
+  // How many dance periods back each stream's period lock reaches (metadata "time_base": {...,
+  // "period_lock_periods": {"upper": n, "lower": n}}, integers 1..kMaxPeriodLockPeriods; default 1 each):
+  // the lag is n x the dance period in whole steps (Session::lock_lag). Stream 0 upper, 1 lower. Two for
+  // the lower body repeats a two-period figure (a waltz's box step is two bars, one led by each foot).
+  int period_lock_periods(int stream) const { return period_lock_periods_[stream]; }
   // The style guidance weight sessions use when SamplingOptions::guidance is negative (metadata
   // "sampling": {"guidance": W}, 0..100); 1 = off (models without it).
   float default_guidance() const { return default_guidance_; }
@@ -115,6 +123,7 @@ class Model {
   std::vector<int> style_beats_per_bar_;      // per style row (n_styles)
   std::vector<double> dance_period_beats_;    // per style row (n_styles); empty = none
   float default_period_lock_ = 0.0f;
+  std::array<int, 2> period_lock_periods_ = {1, 1};  // upper, lower
   float default_guidance_ = 1.0f;
   float default_top_p_ = 1.0f;
   std::array<RowMatrix, 2> unit_codebook_;    // upper, lower

@@ -13,8 +13,9 @@ namespace {
 
 constexpr int kFeatureDims = audio::kNumFeatures;
 constexpr int kPreDims = audio::kPreDims;
-// The longest period the lock can reach back: 16 beats at 30 BPM are 240 steps.
-constexpr size_t kMaxCodeHistory = 256;
+// The furthest the lock can reach back: kMaxPeriodLockPeriods (4) periods of 16 beats at 30 BPM, 240 steps each.
+constexpr size_t kMaxCodeHistory = 1024;
+static_assert(kMaxCodeHistory >= kMaxPeriodLockPeriods * 240);
 // Period lock kernel exp((s - 1) x sharpness) of the similarity s to the target: 1 for the target code
 // itself, 0.37 at s = 0.95 (the typical nearest code), 0.007 at s = 0.75.
 constexpr float kLockSharpness = 20.0f;
@@ -256,13 +257,16 @@ void Session::SampleCodes(const float* logits_u, const float* logits_l, const fl
     lu = guided_u_;
     ll = guided_l_;
   }
-  if (period_lock() > 0.0f && period_steps_ > 0.0 && code_history_.size() >= lock_lag()) {
+  // Each stream locks once its lag's codes exist (the lower body's lag may be longer than the upper's).
+  const bool lock_u = period_lock() > 0.0f && period_steps_ > 0.0 && code_history_.size() >= lock_lag(0);
+  const bool lock_l = period_lock() > 0.0f && period_steps_ > 0.0 && code_history_.size() >= lock_lag(1);
+  if (lock_u || lock_l) {
     if (uncond_u == nullptr) {
       std::copy(logits_u, logits_u + k, guided_u_.begin());
       std::copy(logits_l, logits_l + k, guided_l_.begin());
     }
-    if (PeriodMoves(0)) ApplyPeriodLock(0, absl::MakeSpan(guided_u_));
-    if (PeriodMoves(1) && !PeriodTurned()) ApplyPeriodLock(1, absl::MakeSpan(guided_l_));
+    if (lock_u && PeriodMoves(0)) ApplyPeriodLock(0, absl::MakeSpan(guided_u_));
+    if (lock_l && PeriodMoves(1) && !PeriodTurned()) ApplyPeriodLock(1, absl::MakeSpan(guided_l_));
     lu = guided_u_;
     ll = guided_l_;
   }
@@ -301,7 +305,7 @@ bool Session::PeriodMoves(int stream) {
   // Stillness is periodic too: a lock that repeated a held pose would hold it for the rest of the song
   // (measured: the cha-cha and rumba froze, 1-2 distinct codes per 2 s against 12 unlocked). So the lock
   // repeats only a period in which this stream moved.
-  return PeriodMoved(code_history_, stream, lock_lag(), model_->config().codebook_size, &lock_seen_);
+  return PeriodMoved(code_history_, stream, lock_lag(stream), model_->config().codebook_size, &lock_seen_);
 }
 
 bool PeriodTurned(const std::deque<double>& headings, size_t lag, double max_turn) {
@@ -318,16 +322,17 @@ void UpdateCrouchGuard(bool crouched, double* load, bool* active) {
   if (*load < kCrouchGuardOff) *active = false;
 }
 
-bool Session::PeriodTurned() const { return engine::PeriodTurned(heading_history_, lock_lag()); }
+bool Session::PeriodTurned() const { return engine::PeriodTurned(heading_history_, lock_lag(1)); }
 
 void Session::ApplyPeriodLock(int stream, absl::Span<float> logits) {
-  // The target is the code n = round(L) steps back (L = period_steps_, rarely an integer): a constant lag,
+  // The target is the code n = m round(L) steps back (L = period_steps_, rarely an integer; m the stream's
+  // period_lock_periods): a constant lag,
   // so a locked dance repeats its codes in order. (Blending the codes at floor(L) and ceil(L) made a locked
   // dance stutter, repeating or skipping a code whenever it switched lag: FID_k 72 against 37 at weight 8.)
   // The bias of code i is lock x exp((s_i - 1) x kLockSharpness), s_i its cosine similarity to the target.
   const RowMatrix& unit = model_->unit_codebook(stream);
   const float lock = period_lock();
-  const auto& [up, low] = code_history_[code_history_.size() - lock_lag()];
+  const auto& [up, low] = code_history_[code_history_.size() - lock_lag(stream)];
   lock_sim_.resize(unit.rows());
   lock_sim_.noalias() = unit * unit.row(stream == 0 ? up : low).transpose();
   for (size_t i = 0; i < logits.size(); ++i) {

@@ -201,17 +201,22 @@ class Session {
   // Tempo-normalised models: emits every real frame whose warped poses are decoded.
   void EmitWarpedFrames();
   bool warped() const { return model_->tempo_reference_bpm() > 0.0; }
-  // Adds the period lock's bias toward the code lock_lag() steps ago to `logits` of `stream` (0 upper).
+  // Adds the period lock's bias toward the code lock_lag(stream) steps ago to `logits` of `stream` (0 upper).
   void ApplyPeriodLock(int stream, absl::Span<float> logits);
-  // Whether `stream` moved over the last lock_lag() steps (at least half of them distinct codes).
+  // Whether `stream` moved over its last lock_lag(stream) steps (at least half of them distinct codes).
   bool PeriodMoves(int stream);
-  // Whether the body turned by more than kPeriodLockMaxTurn over the last lock_lag() steps (the lower
+  // Whether the body turned by more than kPeriodLockMaxTurn over the last lock_lag(1) steps (the lower
   // body's lock does not repeat such a period).
   bool PeriodTurned() const;
   // Whether the crouch guard holds the lower body to standing codes this step.
   bool CrouchGuardActive() const;
-  // One dance period in whole steps (>= 1).
-  size_t lock_lag() const { return static_cast<size_t>(std::max(1.0, std::round(period_steps_))); }
+  // The period lock's lag of `stream` in whole steps: the model's period_lock_periods(stream) times one
+  // period in whole steps (>= 1), so a lower body locked two periods back stays in phase with an upper body
+  // locked one period back (two periods of 7.5 steps are 2 x 8 = 16 steps, not 15).
+  size_t lock_lag(int stream) const {
+    return static_cast<size_t>(model_->period_lock_periods(stream)) *
+           static_cast<size_t>(std::max(1.0, std::round(period_steps_)));
+  }
   WarpState NewWarpState() const;
 
   std::shared_ptr<const Model> model_;

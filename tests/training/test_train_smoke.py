@@ -119,3 +119,27 @@ def test_vq_vel_and_acc_weights_scale_their_terms():
   assert logs["vel"] > 0 and logs["acc"] > 0
   assert abs(float(out[(3.0, 1.0)][0]) - float(base) - 2 * logs["vel"]) < 1e-5
   assert abs(float(out[(1.0, 4.0)][0]) - float(base) - 3 * logs["acc"]) < 1e-5
+
+
+def test_time_base_meta_writes_the_period_locks_reach(tmp_path):
+  import argparse
+  import json
+
+  import pytest
+
+  from training import train
+  from training.train_seq import time_base_meta
+  (tmp_path / "style_reference_bpm.json").write_text(json.dumps({"waltz": 87.0, "tango": 128.0}))
+  (tmp_path / "dance_period_beats.json").write_text(json.dumps({"waltz": 3, "tango": 2}))
+  args = argparse.Namespace(tempo_ref=105.0, period_lock=8.0, period_lock_periods=[1, 2], bar_clock=False)
+  tb = time_base_meta(args, tmp_path, print)
+  assert tb["kind"] == "tempo" and tb["dance_period_beats"] == {"waltz": 3, "tango": 2}
+  assert tb["period_lock"] == 8.0 and tb["period_lock_periods"] == {"upper": 1, "lower": 2}
+  args.tempo_ref = 0.0
+  assert time_base_meta(args, tmp_path, print) == {"kind": "fixed"}
+  # The one command refuses a reach outside 1..4 or not two integers before doing anything.
+  for bad in ("0,2", "1,5", "2", "1,2,1", "a,b"):
+    with pytest.raises(SystemExit) as e:
+      train.main(["--run", str(tmp_path / "never"), "--period-lock-periods", bad])
+    assert e.value.code == 2
+  assert not (tmp_path / "never").exists()

@@ -810,6 +810,66 @@ TEST(WarpedSession, PeriodLockRepeatsTheCodesOfOneDancePeriodAgo) {
   EXPECT_LT(repeat_fraction(model, 0.0f, "tango", 8), 0.5);
 }
 
+TEST(WarpedSession, PeriodLockReachesBackEachStreamsNumberOfPeriods) {
+  // time_base.period_lock_periods {"upper": 1, "lower": 2}: waltz (3 beats at 90 BPM = 15 steps) locks the
+  // upper body at 15 steps and the lower at 30; tango (2 beats at 120 = 7.5 steps) at 8 and 2 x 8 = 16 (not
+  // round(15.0): the lower body stays in phase with the upper). 64 codes: the movement rule asks for 15 distinct codes
+  // in a 30-step window, which the 16 codes of the usual tiny model rarely reach.
+  testing::TinyModelOptions o;
+  o.codebook_size = 64;
+  o.tempo_reference_bpm = 105.0;
+  o.style_reference_bpm = {{"waltz", 90.0}, {"tango", 120.0}};
+  o.dance_period_beats = {{"waltz", 3.0}, {"tango", 2.0}};
+  auto one_period = LoadTinyModel(o);
+  o.upper_lock_periods = 1;
+  o.lower_lock_periods = 1;
+  auto explicit_one = LoadTinyModel(o);
+  o.lower_lock_periods = 2;
+  auto model = LoadTinyModel(o);
+  EXPECT_EQ(one_period->period_lock_periods(0), 1);
+  EXPECT_EQ(one_period->period_lock_periods(1), 1);
+  EXPECT_EQ(model->period_lock_periods(0), 1);
+  EXPECT_EQ(model->period_lock_periods(1), 2);
+  const std::vector<float> audio = testing::ClickAudio(20.0, 100.0);
+  auto codes_of = [&](std::shared_ptr<const Model> m, const std::string& style) {
+    SamplingOptions sampling = Sampling(1.0f);
+    sampling.period_lock = 100.0f;
+    SessionOptions opt = Opts(5, sampling);
+    opt.style = {{style, 1.0f}};
+    auto s = MakeSession(std::move(m), opt);
+    EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio)).ok());
+    s->EndOfAudio();
+    std::vector<std::pair<int, int>> codes;
+    while (s->StepsReady() > 0) {
+      EXPECT_TRUE(s->Step().ok());
+      codes.push_back(s->last_codes());
+    }
+    return codes;
+  };
+  // Fraction of steps from `from` on whose code of `stream` equals the code `lag` steps earlier.
+  auto repeats = [](const std::vector<std::pair<int, int>>& codes, int stream, size_t lag, size_t from) {
+    int same = 0, n = 0;
+    for (size_t t = from; t < codes.size(); ++t, ++n) {
+      same += stream == 0 ? codes[t].first == codes[t - lag].first : codes[t].second == codes[t - lag].second;
+    }
+    EXPECT_GT(n, 40);
+    return n > 0 ? static_cast<double>(same) / n : 0.0;
+  };
+  const auto waltz = codes_of(model, "waltz");
+  EXPECT_GT(repeats(waltz, 0, 15, 60), 0.95);
+  EXPECT_GT(repeats(waltz, 1, 30, 60), 0.95);
+  EXPECT_LT(repeats(waltz, 1, 15, 60), 0.5);  // the lower body's figure is two periods long
+  const auto tango = codes_of(model, "tango");
+  EXPECT_GT(repeats(tango, 0, 8, 60), 0.95);
+  EXPECT_GT(repeats(tango, 1, 16, 60), 0.95);
+  EXPECT_LT(repeats(tango, 1, 15, 60), 0.5);
+  // One period for the lower body too: at 15 steps; and {1, 1} is the model without the key.
+  const auto waltz_one = codes_of(one_period, "waltz");
+  EXPECT_GT(repeats(waltz_one, 1, 15, 60), 0.95);
+  EXPECT_EQ(codes_of(explicit_one, "waltz"), waltz_one);
+  EXPECT_NE(waltz, waltz_one);
+}
+
 TEST(WarpedSession, PeriodLockRepeatsMovementNotStillness) {
   // The lock applies to a stream only if at least half of the last period's steps brought a new code.
   std::deque<std::pair<int, int>> history;
@@ -1057,6 +1117,19 @@ TEST(WarpedSession, RefusesABadTimeBase) {
     ASSERT_TRUE(testing::TinyModelWriter(o).WriteFile(path).ok());
     m = LoadModel(path);
     ASSERT_FALSE(m.ok()) << style << " " << beats << " " << lock;
+    EXPECT_TRUE(absl::StrContains(m.status().message(), message)) << m.status();
+  }
+  // Period lock periods: integers in 1..4 per stream.
+  o.dance_period_beats = {{"waltz", 3.0}};
+  o.period_lock = 8.0;
+  for (const auto& [upper, lower, message] : std::vector<std::tuple<int, int, std::string>>{
+           {5, 0, "period_lock_periods['upper'] must be an integer in 1..4"},
+           {1, -1, "period_lock_periods['lower'] must be an integer in 1..4"}}) {
+    o.upper_lock_periods = upper;
+    o.lower_lock_periods = lower;
+    ASSERT_TRUE(testing::TinyModelWriter(o).WriteFile(path).ok());
+    m = LoadModel(path);
+    ASSERT_FALSE(m.ok()) << upper << " " << lower;
     EXPECT_TRUE(absl::StrContains(m.status().message(), message)) << m.status();
   }
 }

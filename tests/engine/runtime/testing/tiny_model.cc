@@ -126,6 +126,8 @@ WeightsWriter TinyModelWriter(const TinyModelOptions& o) {
     }
     for (const auto& [name, beats] : o.dance_period_beats) meta["time_base"]["dance_period_beats"][name] = beats;
     if (o.period_lock >= 0.0) meta["time_base"]["period_lock"] = o.period_lock;
+    if (o.upper_lock_periods != 0) meta["time_base"]["period_lock_periods"]["upper"] = o.upper_lock_periods;
+    if (o.lower_lock_periods != 0) meta["time_base"]["period_lock_periods"]["lower"] = o.lower_lock_periods;
   }
   if (o.guidance >= 0.0) meta["sampling"]["guidance"] = o.guidance;
   if (o.top_p > 0.0) meta["sampling"]["top_p"] = o.top_p;

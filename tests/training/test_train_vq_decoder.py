@@ -1,0 +1,89 @@
+"""Decoder-only VQ-VAE fine-tuning (training.train_vq_decoder): two steps on tiny random VQ-VAEs change only the
+decoder; the energy term is zero for a perfect decode and positive otherwise."""
+import numpy as np
+import torch
+
+from training.model import VQConfig
+from training.model.vqvae import PoseVQVAE
+from training.train_vq_decoder import channel_groups, energy_loss, finetune_decoder
+
+
+def _tiny(dim: int) -> PoseVQVAE:
+  torch.manual_seed(dim)
+  return PoseVQVAE(VQConfig(in_dim=dim, width=16, code_dim=8, codebook_size=16, n_res=1,
+                            vel_weight=4.0, acc_weight=4.0)).eval()
+
+
+def _arrays(dim: int, seed: int = 0) -> list[np.ndarray]:
+  rng = np.random.default_rng(seed)
+  return [np.cumsum(rng.standard_normal((n, dim)), axis=0).astype(np.float32) * 0.01 for n in (80, 100, 120)]
+
+
+def test_two_steps_change_only_the_decoder():
+  for part, dim in (("upper", 45), ("lower", 31)):
+    vq = _tiny(dim)
+    frozen = {k: v.clone() for k, v in vq.state_dict().items() if not k.startswith("decoder.")}
+    dec_before = {k: v.clone() for k, v in vq.decoder.state_dict().items()}
+    hist = finetune_decoder(vq, part, _arrays(dim), iters=2, energy_weight=1.0, lr=1e-2, batch=4,
+                            log=lambda msg: None, log_every=1)
+    assert len(hist) == 2 and all(np.isfinite(h["loss"]) and h["energy"] > 0 for h in hist)
+    after = vq.state_dict()
+    for k, v in frozen.items():  # encoder, codebook and its EMA statistics, normalisation: bit-identical
+      assert torch.equal(v, after[k]), f"{part}: {k} changed"
+    assert any(not torch.equal(v, vq.decoder.state_dict()[k]) for k, v in dec_before.items())
+    assert not vq.training
+
+
+def test_energy_term_zero_iff_equal():
+  groups = channel_groups(31)
+  assert len(groups) == 9 + 4 and groups[9] == [27]
+  assert len(channel_groups(45)) == 15
+  torch.manual_seed(0)
+  target = torch.randn(3, 64, 31).cumsum(1) * 0.01
+  assert float(energy_loss(target.clone(), target, groups)) == 0.0
+  assert float(energy_loss(0.5 * target, target, groups)) > 0.0  # too gentle
+  assert float(energy_loss(target + 0.01 * torch.randn_like(target), target, groups)) > 0.0  # jittery
+
+
+def test_export_with_decoders_changes_only_the_decoders(tmp_path):
+  from training.export import export_model, load_models, read_dncw
+  from training.model import SeqConfig
+  from training.model.danceba import Danceba
+  from training.train_vq_decoder import export_with_decoders
+  torch.manual_seed(0)
+  seq = Danceba(SeqConfig(feature_dim=6, pre_dim=8, d_model=16, n_heads=2, codebook_size=16, n_styles=2,
+                          style_dim=4)).eval()
+  vqs = {"upper": _tiny(45), "lower": _tiny(31)}
+  src = tmp_path / "src.dncw"
+  export_model(str(src), seq, vqs, {"model_id": "src", "styles": ["a", "b"]})
+  seq2, vqs2, meta = load_models(str(src))
+  for part, dim in (("upper", 45), ("lower", 31)):
+    finetune_decoder(vqs2[part], part, _arrays(dim), iters=2, energy_weight=0.3, lr=1e-2, batch=4,
+                     log=lambda msg: None)
+  out = tmp_path / "out.dncw"
+  export_with_decoders(str(out), seq2, vqs2, meta, {"energy_weight": 0.3, "export": str(out)}, "new-id")
+  h0, t0 = read_dncw(str(src))
+  h1, t1 = read_dncw(str(out))
+  assert sorted(t0) == sorted(t1)
+  changed = {n for n in t0 if not np.array_equal(t0[n], t1[n])}
+  assert changed and all(n.startswith("vq.") and ".dec." in n for n in changed), sorted(changed)
+  assert h1["metadata"]["model_id"] == "new-id"
+  assert h1["metadata"]["training"]["vqdec"] == {"energy_weight": 0.3}
+  assert h1["metadata"]["styles"] == ["a", "b"]
+
+
+def test_load_vqs_prefers_the_fine_tuned_decoders(tmp_path):
+  from training.train import load_vqs
+  for part, dim in (("upper", 45), ("lower", 31)):
+    vq = _tiny(dim)
+    torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict()}, tmp_path / f"vq_{part}.pt")
+    with torch.no_grad():
+      for p in vq.decoder.parameters():
+        p.add_(1.0)
+    torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict()}, tmp_path / f"vqdec_{part}.pt")
+  tuned, plain = load_vqs(tmp_path), load_vqs(tmp_path, fine_tuned=False)
+  for part in ("upper", "lower"):
+    dec_t, dec_p = tuned[part].decoder.state_dict(), plain[part].decoder.state_dict()
+    assert all(torch.equal(dec_t[k], dec_p[k] + 1.0) for k in dec_t if dec_t[k].is_floating_point())
+    enc_t, enc_p = tuned[part].encoder.state_dict(), plain[part].encoder.state_dict()
+    assert all(torch.equal(enc_t[k], enc_p[k]) for k in enc_t)
