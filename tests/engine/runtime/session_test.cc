@@ -763,6 +763,25 @@ TEST(WarpedSession, BarClockReplacesTheTrackersBarPhase) {
   EXPECT_NEAR(probe->last_warped_music_token()[audio::kBarPhaseCosIndex], std::cos(2.0 * M_PI * x), 1e-6);
 }
 
+// Every step's (upper, lower) codes of a session on `audio` (then EndOfAudio) with `style` and lock weight
+// `lock`, sampling at temperature 1 with seed 5.
+std::vector<std::pair<int, int>> LockedCodes(std::shared_ptr<const Model> m, float lock, const std::string& style,
+                                             const std::vector<float>& audio) {
+  SamplingOptions sampling = Sampling(1.0f);
+  sampling.period_lock = lock;
+  SessionOptions opt = Opts(5, sampling);
+  opt.style = {{style, 1.0f}};
+  auto s = MakeSession(std::move(m), opt);
+  EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio)).ok());
+  s->EndOfAudio();
+  std::vector<std::pair<int, int>> codes;
+  while (s->StepsReady() > 0) {
+    EXPECT_TRUE(s->Step().ok());
+    codes.push_back(s->last_codes());
+  }
+  return codes;
+}
+
 TEST(WarpedSession, PeriodLockRepeatsTheCodesOfOneDancePeriodAgo) {
   // Waltz: 3 beats at R = 90 BPM = 60 warped frames = 15 steps exactly; tango: 2 beats at 120 = 7.5 steps.
   testing::TinyModelOptions o;
@@ -777,18 +796,7 @@ TEST(WarpedSession, PeriodLockRepeatsTheCodesOfOneDancePeriodAgo) {
   const std::vector<float> audio = testing::ClickAudio(12.0, 100.0);
   // Fraction of steps whose code (each stream) equals the code `lag` steps earlier.
   auto repeat_fraction = [&](std::shared_ptr<const Model> m, float lock, const std::string& style, int lag) {
-    SamplingOptions sampling = Sampling(1.0f);
-    sampling.period_lock = lock;
-    SessionOptions opt = Opts(5, sampling);
-    opt.style = {{style, 1.0f}};
-    auto s = MakeSession(std::move(m), opt);
-    EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio)).ok());
-    s->EndOfAudio();
-    std::vector<std::pair<int, int>> codes;
-    while (s->StepsReady() > 0) {
-      EXPECT_TRUE(s->Step().ok());
-      codes.push_back(s->last_codes());
-    }
+    const std::vector<std::pair<int, int>> codes = LockedCodes(std::move(m), lock, style, audio);
     int same = 0, n = 0;
     for (size_t t = 2 * lag; t < codes.size(); ++t, ++n) {
       same += codes[t].first == codes[t - lag].first;
@@ -832,19 +840,7 @@ TEST(WarpedSession, PeriodLockReachesBackEachStreamsNumberOfPeriods) {
   EXPECT_EQ(model->period_lock_periods(1), 2);
   const std::vector<float> audio = testing::ClickAudio(20.0, 100.0);
   auto codes_of = [&](std::shared_ptr<const Model> m, const std::string& style) {
-    SamplingOptions sampling = Sampling(1.0f);
-    sampling.period_lock = 100.0f;
-    SessionOptions opt = Opts(5, sampling);
-    opt.style = {{style, 1.0f}};
-    auto s = MakeSession(std::move(m), opt);
-    EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio)).ok());
-    s->EndOfAudio();
-    std::vector<std::pair<int, int>> codes;
-    while (s->StepsReady() > 0) {
-      EXPECT_TRUE(s->Step().ok());
-      codes.push_back(s->last_codes());
-    }
-    return codes;
+    return LockedCodes(std::move(m), 100.0f, style, audio);
   };
   // Fraction of steps from `from` on whose code of `stream` equals the code `lag` steps earlier.
   auto repeats = [](const std::vector<std::pair<int, int>>& codes, int stream, size_t lag, size_t from) {
