@@ -42,12 +42,12 @@ class Logger:
 
 
 def stage_vq(args, run: pathlib.Path, log: Logger) -> dict:
-  from training.train_vq import train_vq, validation_report
-  split = td.load_split()
-  train = [td.load_clip(i, with_music=False) for i in split["train"]]
-  if args.vq_mirror:  # every training dance also reflected left-right (skeleton.mirror_positions)
-    train += [td.load_clip(i, with_music=False, mirror=True) for i in split["train"]]
-  val = [td.load_clip(i, with_music=False) for i in split["validation"]]
+  from training.train_vq import train_vq, training_clips, validation_report
+  # Decoders fine-tuned from an earlier VQ-VAE would not match the new codebooks: the vqdec stage redoes them.
+  for stale in ("vqdec_upper.pt", "vqdec_lower.pt", "vqdec_report.json"):
+    (run / stale).unlink(missing_ok=True)
+  train = training_clips(args.vq_mirror)
+  val = [td.load_clip(i, with_music=False) for i in td.load_split()["validation"]]
   log(f"vq: {len(train)} train clips ({sum(len(c.upper) for c in train)} frames), {len(val)} validation")
   vqs = {}
   for part, dim in (("upper", 45), ("lower", 31)):
@@ -201,7 +201,7 @@ def main(argv=None) -> int:
     args.period_lock_periods = [int(x) for x in raw_periods.split(",")]
   except ValueError:
     args.period_lock_periods = []
-  if len(args.period_lock_periods) != 2 or not all(1 <= n <= 4 for n in args.period_lock_periods):
+  if len(args.period_lock_periods) != 2 or not all(1 <= n <= 4 for n in args.period_lock_periods):  # engine: kMaxPeriodLockPeriods
     ap.error(f"--period-lock-periods must be two integers in 1..4 (upper,lower), got '{raw_periods}'")
   if not 0.0 <= args.guidance <= 100.0:
     ap.error(f"--guidance must be in [0, 100], got {args.guidance}")

@@ -52,6 +52,17 @@ def vq_loss(vq: PoseVQVAE, x: torch.Tensor, part: str) -> tuple[torch.Tensor, di
   return loss, logs
 
 
+def training_clips(mirror: bool = False) -> list:
+  """The VQ-VAEs' training motion: every clip of split.json's "train" (Tang, CMU salsa, Perfume), motion only;
+  with `mirror` also each one reflected left-right (skeleton.mirror_positions)."""
+  from training import train_data as td
+  ids = td.load_split()["train"]
+  clips = [td.load_clip(i, with_music=False) for i in ids]
+  if mirror:
+    clips += [td.load_clip(i, with_music=False, mirror=True) for i in ids]
+  return clips
+
+
 def sample_windows(arrays: list[np.ndarray], batch: int, rng: np.random.Generator) -> torch.Tensor:
   lengths = np.array([len(a) for a in arrays], dtype=np.float64)
   probs = np.maximum(lengths - WINDOW, 1) / np.maximum(lengths - WINDOW, 1).sum()

@@ -139,14 +139,10 @@ def finetune_decoder(vq: PoseVQVAE, part: str, arrays: list[np.ndarray], iters: 
 
 
 def training_arrays(part: str, mirror: bool = False) -> list[np.ndarray]:
-  """The VQ stage's training motion (training.train.stage_vq): every clip of split.json's "train" (Tang,
-  CMU salsa, Perfume), optionally with the mirrored copies (--vq-mirror; the shipped model: off)."""
-  from training import train_data as td
-  ids = td.load_split()["train"]
-  clips = [td.load_clip(i, with_music=False) for i in ids]
-  if mirror:
-    clips += [td.load_clip(i, with_music=False, mirror=True) for i in ids]
-  return [getattr(c, part) for c in clips]
+  """The VQ stage's training motion of `part` (train_vq.training_clips: split.json's "train", optionally
+  mirrored; the shipped model: not mirrored)."""
+  from training.train_vq import training_clips
+  return [getattr(c, part) for c in training_clips(mirror)]
 
 
 def main(argv=None) -> int:
