@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <fstream>
 #include <iostream>
+#include <map>
 #include <memory>
 #include <string>
 #include <thread>
@@ -266,7 +267,13 @@ int Info() {
             << info.active_sessions() << "/" << info.max_sessions() << ", styles:";
   for (const auto& s : info.styles()) std::cout << " " << s;
   std::cout << "\ndefaults: guidance " << info.default_guidance() << ", top_p " << info.default_top_p()
-            << ", period lock " << info.default_period_lock() << "\n";
+            << ", period lock " << info.default_period_lock();
+  // Styles whose period lock differs from the default (sorted: the proto map has no order).
+  std::map<std::string, float> locks(info.style_period_lock().begin(), info.style_period_lock().end());
+  for (const auto& [style, lock] : locks) {
+    if (lock != info.default_period_lock()) std::cout << " (" << style << " " << lock << ")";
+  }
+  std::cout << "\n";
   grpc::ClientContext ctx2;
   if (!absl::GetFlag(FLAGS_token).empty()) ctx2.AddMetadata("authorization", "Bearer " + absl::GetFlag(FLAGS_token));
   dance::v1::ListSessionsResponse list;

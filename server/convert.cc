@@ -200,6 +200,7 @@ nlohmann::json ModelToJson(const ModelDescription& m) {
   return json{{"model_id", m.model_id},       {"latency_ms", m.latency_ms}, {"fps", m.fps},
               {"joint_names", m.joint_names}, {"parents", m.parents},       {"rest_offsets", m.rest_offsets},
               {"styles", m.styles}, {"default_period_lock", m.default_period_lock},
+              {"style_period_lock", m.style_period_lock},
               {"default_guidance", m.default_guidance}, {"default_top_p", m.default_top_p}};
 }
 

@@ -54,11 +54,14 @@ class EngineSessionStream final : public EngineStream {
   absl::Status SetStyle(const StyleMix& style) override { return session_->SetStyle(style); }
   absl::Status SetSampling(const SamplingConfig& sampling) override {
     engine::SamplingOptions o = ToEngine(sampling);
-    // A Control whose sampling has no period_lock, guidance 0 or top_p 0 keeps the value in effect ("unset
-    // fields keep their value"); in a StreamHeader the same mean the model's defaults.
-    if (o.period_lock < 0.0f) o.period_lock = session_->period_lock();
-    if (o.guidance < 0.0f) o.guidance = session_->guidance();
-    if (o.top_p < 0.0f) o.top_p = session_->top_p();
+    // A Control whose sampling has no period_lock, guidance 0 or top_p 0 keeps the setting in effect ("unset
+    // fields keep their value"): an explicit value stays, and so does "the model's default", which for the
+    // period lock depends on the style (Model::StylePeriodLock) and must follow later style changes. In a
+    // StreamHeader the same mean the model's defaults.
+    const engine::SamplingOptions& now = session_->sampling();
+    if (o.period_lock < 0.0f) o.period_lock = now.period_lock;
+    if (o.guidance < 0.0f) o.guidance = now.guidance;
+    if (o.top_p < 0.0f) o.top_p = now.top_p;
     return session_->SetSampling(o);
   }
 
@@ -80,6 +83,9 @@ class EngineBackendImpl final : public EngineBackend {
     for (const Eigen::Vector3f& o : sk.offsets) desc_.rest_offsets.insert(desc_.rest_offsets.end(), {o.x(), o.y(), o.z()});
     desc_.styles = model_->styles();
     desc_.default_period_lock = model_->default_period_lock();
+    for (size_t i = 0; i < desc_.styles.size(); ++i) {
+      desc_.style_period_lock[desc_.styles[i]] = model_->StylePeriodLock(static_cast<int>(i));
+    }
     desc_.default_guidance = model_->default_guidance();
     desc_.default_top_p = model_->default_top_p();
   }

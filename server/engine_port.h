@@ -17,6 +17,7 @@
 
 #include <array>
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <string>
 #include <utility>
@@ -59,7 +60,8 @@ struct ModelDescription {
   std::vector<int> parents;              // kNumJoints, -1 = root
   std::vector<float> rest_offsets;       // kNumJoints * 3, metres
   std::vector<std::string> styles;
-  float default_period_lock = 0.0f;  // Sampling.period_lock when absent (0 = off)
+  float default_period_lock = 0.0f;  // Sampling.period_lock when absent (0 = off) and the style is "none"
+  std::map<std::string, float> style_period_lock;  // per style: Sampling.period_lock when absent
   float default_guidance = 1.0f;     // Sampling.guidance when 0 (1 = off)
   float default_top_p = 1.0f;        // Sampling.top_p when 0 (1 = no cut)
 };

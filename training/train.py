@@ -124,6 +124,24 @@ def pretrain_seq(args, cfg, vqs, factors, run: pathlib.Path, vq_run: pathlib.Pat
   return out
 
 
+def parse_style_weights(text: str) -> dict[str, float]:
+  """'waltz=0,tango=4' -> {"waltz": 0.0, "tango": 4.0}: known style names (train_data.STYLES), each weight
+  in 0..100 (the engine's range for time_base.style_period_lock); '' -> {}."""
+  out = {}
+  for part in filter(None, (p.strip() for p in text.split(","))):
+    name, sep, value = part.partition("=")
+    if not sep or name not in td.STYLES:
+      raise ValueError(f"'{part}' is not STYLE=B with STYLE one of {', '.join(td.STYLES)}")
+    try:
+      weight = float(value)
+    except ValueError:
+      weight = float("nan")
+    if not 0.0 <= weight <= 100.0:
+      raise ValueError(f"'{part}': the weight must be a number in 0..100")
+    out[name] = weight
+  return out
+
+
 def main(argv=None) -> int:
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   ap.add_argument("--run", default=str(REPO / "training" / "runs" / "default"))
@@ -175,6 +193,10 @@ def main(argv=None) -> int:
                   help="tempo-normalised runs: the engine's default period lock weight written into the model "
                        "(time_base.period_lock, with each style's dance period measured on the training dances; "
                        "docs/model.md section 7); 0 = off")
+  ap.add_argument("--style-period-lock", default="waltz=0", metavar="STYLE=B[,STYLE=B...]",
+                  help="tempo-normalised runs: per-style period lock weights overriding --period-lock for "
+                       "sessions of that top style (time_base.style_period_lock, each 0..100; '' = none); the "
+                       "waltzes here follow the tempo unlocked (docs/training.md)")
   ap.add_argument("--period-lock-periods", default="1,2", metavar="UPPER,LOWER",
                   help="tempo-normalised runs: how many dance periods back each stream's period lock reaches "
                        "(time_base.period_lock_periods, integers 1..4; docs/model.md section 6); the lower "
@@ -196,6 +218,10 @@ def main(argv=None) -> int:
   args = ap.parse_args(argv)
   if not 0.0 <= args.period_lock <= 100.0:
     ap.error(f"--period-lock must be in [0, 100], got {args.period_lock}")
+  try:
+    args.style_period_lock = parse_style_weights(args.style_period_lock)
+  except ValueError as e:
+    ap.error(f"--style-period-lock: {e}")
   raw_periods = args.period_lock_periods
   try:
     args.period_lock_periods = [int(x) for x in raw_periods.split(",")]

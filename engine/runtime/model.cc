@@ -168,6 +168,17 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
         }
         m->default_period_lock_ = static_cast<float>(lock);
       }
+      m->style_period_lock_.assign(m->styles_.size(), m->default_period_lock_);
+      if (tb.contains("style_period_lock")) {
+        // {style: B_s, ...}: the lock weight of sessions whose top style is s (others: period_lock).
+        std::vector<double> per(m->styles_.size(), m->default_period_lock_);
+        DANCE_RETURN_IF_ERROR(
+            ReadPerStyle(*m, tb["style_period_lock"], "style_period_lock", 0.0, 100.0, false, "0..100", &per));
+        if (m->dance_period_beats_.empty() && std::any_of(per.begin(), per.end(), [](double b) { return b > 0.0; })) {
+          return absl::InvalidArgumentError("weights metadata: time_base.style_period_lock needs dance_period_beats");
+        }
+        m->style_period_lock_.assign(per.begin(), per.end());
+      }
       if (tb.contains("period_lock_periods")) {
         // {"upper": n, "lower": n}: each stream's lock repeats the codes of n dance periods back (1..4).
         const nlohmann::json& pp = tb["period_lock_periods"];

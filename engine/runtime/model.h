@@ -79,6 +79,13 @@ class Model {
   // The period lock weight sessions use when SamplingOptions::period_lock is negative (metadata
   // "time_base": {..., "period_lock": B}, which needs dance_period_beats); 0 = off (models without it).
   float default_period_lock() const { return default_period_lock_; }
+  // The period lock weight of sessions whose top style is row `row` (metadata "time_base": {...,
+  // "style_period_lock": {style: B_s, ...}}, each 0..100; styles not named, "none" and rows out of range:
+  // default_period_lock()). The waltzes here follow the tempo unlocked (docs/training.md).
+  float StylePeriodLock(int row) const {
+    return row >= 0 && row < static_cast<int>(style_period_lock_.size()) ? style_period_lock_[row]
+                                                                           : default_period_lock_;
+  }
   // How many dance periods back each stream's period lock reaches (metadata "time_base": {...,
   // "period_lock_periods": {"upper": n, "lower": n}}, integers 1..kMaxPeriodLockPeriods; default 1 each):
   // the lag is n x the dance period in whole steps (Session::lock_lag). Stream 0 upper, 1 lower. Two for
@@ -123,6 +130,7 @@ class Model {
   std::vector<int> style_beats_per_bar_;      // per style row (n_styles)
   std::vector<double> dance_period_beats_;    // per style row (n_styles); empty = none
   float default_period_lock_ = 0.0f;
+  std::vector<float> style_period_lock_;      // per style row (n_styles)
   std::array<int, 2> period_lock_periods_ = {1, 1};  // upper, lower
   float default_guidance_ = 1.0f;
   float default_top_p_ = 1.0f;

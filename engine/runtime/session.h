@@ -116,6 +116,7 @@ struct SessionSnapshot {
   WarpState warp;
   double bar_frames = 0.0;
   double period_steps = 0.0;
+  float style_period_lock = 0.0f;
   std::deque<std::pair<int, int>> code_history;
   std::deque<double> heading_history;
   double crouch_load = 0.0;
@@ -162,10 +163,11 @@ class Session {
   // model read (its bar phase is the bar clock's if the model has one); for tests. Empty before the first
   // step and for fixed-rate models.
   const std::vector<float>& last_warped_music_token() const { return music_token_; }
-  // The period lock weight in effect (SamplingOptions::period_lock, or the model's default if negative).
-  float period_lock() const {
-    return sampling_.period_lock < 0.0f ? model_->default_period_lock() : sampling_.period_lock;
-  }
+  // The period lock weight in effect (SamplingOptions::period_lock, or if negative the model's weight for
+  // the top style, Model::StylePeriodLock).
+  float period_lock() const { return sampling_.period_lock < 0.0f ? style_period_lock_ : sampling_.period_lock; }
+  // The sampling options as set (negative fields = the model's defaults, resolved per step).
+  const SamplingOptions& sampling() const { return sampling_; }
   // The style guidance weight in effect (SamplingOptions::guidance, or the model's default if negative).
   float guidance() const { return EffectiveGuidance(sampling_); }
   // The nucleus cut in effect (SamplingOptions::top_p, or the model's default if negative).
@@ -244,6 +246,7 @@ class Session {
   double style_reference_bpm_ = 0.0;  // the current style's reference tempo (tempo-normalised models)
   double bar_frames_ = 0.0;           // bar clock period in warped frames (0 = no bar clock)
   double period_steps_ = 0.0;         // the style's dance period in warped steps (0 = unknown: no lock)
+  float style_period_lock_ = 0.0f;    // the top style's default period lock weight (Model::StylePeriodLock)
   std::deque<std::pair<int, int>> code_history_;  // (upper, lower) codes of the last steps, oldest first
   std::deque<double> heading_history_;            // pose_.yaw at the start of the last steps, oldest first
   double crouch_load_ = 0.0;      // leaky count of crouched decoded frames (UpdateCrouchGuard)

@@ -7,8 +7,8 @@
 // The audio is pushed in chunks of N input frames (default 4096; the dance does not depend on N), stepping
 // whenever a step is ready, exactly as a live stream would. Frames past the end of the audio are dropped.
 // Prints one JSON summary line (frames, seconds of audio, wall time, x real time) unless --quiet.
-// --period-lock B: the period lock's weight (0 = off; default: the model's, time_base.period_lock); the
-// dance file records the weight in effect. --crouch-guard 0 turns the crouch guard off (default on; for
+// --period-lock B: the period lock's weight (0 = off; default: the model's for the top style,
+// time_base.style_period_lock or period_lock); the dance file records the weight in effect. --crouch-guard 0 turns the crouch guard off (default on; for
 // measuring it, docs/model.md section 6).
 #include <chrono>
 #include <cstdio>

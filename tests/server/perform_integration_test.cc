@@ -1,11 +1,14 @@
 // Integration: a real dance-server (real engine, tiny model) on port 0, real gRPC channels.
 #include <atomic>
+#include <map>
+#include <string>
 #include <thread>
 #include <vector>
 
 #include "absl/synchronization/notification.h"
 #include "absl/time/clock.h"
 #include "gtest/gtest.h"
+#include "tests/engine/runtime/testing/tiny_model.h"
 #include "tests/server/testing/server_harness.h"
 
 namespace dance::server::testing {
@@ -103,6 +106,65 @@ TEST(EngineBackend, ControlKeepsTheGuidanceTopPAndLockItLeavesUnset) {
     for (size_t i = 0; i < base.size(); ++i) differ += other[i].upper_code != base[i].upper_code;
     EXPECT_GT(differ, 0);
   }
+}
+
+TEST(EngineBackend, AnUnsetPeriodLockKeepsFollowingTheStyle) {
+  // A model whose waltz is unlocked (time_base.style_period_lock {"waltz": 0}) and whose other styles lock
+  // at 6. A Control's sampling without period_lock keeps "the model's default", so a later switch from
+  // tango to waltz unlocks the dance exactly as with no sampling Control; pinning the weight in effect
+  // (6, tango's) would keep the waltz locked, which the last comparison shows is a different dance.
+  engine::testing::TinyModelOptions o;
+  o.tempo_reference_bpm = 105.0;
+  o.style_reference_bpm = {{"waltz", 90.0}, {"tango", 120.0}};
+  o.dance_period_beats = {{"waltz", 3.0}, {"tango", 2.0}};
+  o.period_lock = 6.0;
+  o.style_period_lock = {{"waltz", 0.0}};
+  const std::string path = ::testing::TempDir() + "/style-lock-tiny.dncw";
+  ASSERT_TRUE(engine::testing::TinyModelWriter(o).WriteFile(path).ok());
+  absl::StatusOr<std::unique_ptr<EngineBackend>> backend = LoadEngineBackend(path);
+  ASSERT_TRUE(backend.ok()) << backend.status();
+  const ModelDescription& desc = (*backend)->Describe();
+  EXPECT_EQ(desc.default_period_lock, 6.0f);
+  EXPECT_EQ(desc.style_period_lock, (std::map<std::string, float>{{"waltz", 0.0f}, {"tango", 6.0f}}));
+  StreamConfig config;
+  config.style = {{"tango", 1.0f}};
+  config.seed = 3;
+  const std::vector<float> audio = engine::testing::ClickAudio(8.0, 110.0);
+  const size_t half = audio.size() / 2;
+  auto run = [&](const SamplingConfig* control) {
+    absl::StatusOr<std::unique_ptr<EngineStream>> s = (*backend)->Open(config);
+    EXPECT_TRUE(s.ok()) << s.status();
+    EngineStream* stream = s->get();
+    auto drain = [&] {
+      while (stream->StepsReady() > 0) EXPECT_TRUE((*backend)->StepBatch(absl::MakeConstSpan(&stream, 1)).ok());
+    };
+    EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
+    drain();
+    if (control != nullptr) {
+      EXPECT_TRUE(stream->SetSampling(*control).ok());
+    }
+    EXPECT_TRUE(stream->SetStyle({{"waltz", 1.0f}}).ok());
+    EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
+    stream->EndOfAudio();
+    drain();
+    std::vector<FrameData> frames;
+    stream->PopFrames(&frames);
+    return frames;
+  };
+  SamplingConfig keep;  // temperature 1, top_k 0: as opened; the rest unset
+  SamplingConfig pinned = keep;
+  pinned.period_lock = 6.0f;
+  const std::vector<FrameData> base = run(nullptr), kept = run(&keep), locked = run(&pinned);
+  ASSERT_EQ(base.size(), kept.size());
+  ASSERT_EQ(base.size(), locked.size());
+  ASSERT_GT(base.size(), 200u);
+  int differ = 0;
+  for (size_t i = 0; i < base.size(); ++i) {
+    ASSERT_EQ(base[i].upper_code, kept[i].upper_code) << "frame " << i;
+    ASSERT_EQ(base[i].lower_code, kept[i].lower_code) << "frame " << i;
+    differ += base[i].upper_code != locked[i].upper_code || base[i].lower_code != locked[i].lower_code;
+  }
+  EXPECT_GT(differ, 0);
 }
 
 TEST(PerformIntegration, TwentyConcurrentSessionsAllComplete) {

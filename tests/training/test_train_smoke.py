@@ -121,7 +121,7 @@ def test_vq_vel_and_acc_weights_scale_their_terms():
   assert abs(float(out[(1.0, 4.0)][0]) - float(base) - 3 * logs["acc"]) < 1e-5
 
 
-def test_time_base_meta_writes_the_period_locks_reach(tmp_path):
+def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path):
   import argparse
   import json
 
@@ -131,15 +131,24 @@ def test_time_base_meta_writes_the_period_locks_reach(tmp_path):
   from training.train_seq import time_base_meta
   (tmp_path / "style_reference_bpm.json").write_text(json.dumps({"waltz": 87.0, "tango": 128.0}))
   (tmp_path / "dance_period_beats.json").write_text(json.dumps({"waltz": 3, "tango": 2}))
-  args = argparse.Namespace(tempo_ref=105.0, period_lock=8.0, period_lock_periods=[1, 2], bar_clock=False)
+  args = argparse.Namespace(tempo_ref=105.0, period_lock=8.0, period_lock_periods=[1, 2], bar_clock=False,
+                            style_period_lock=train.parse_style_weights("waltz=0, tango=2.5"))
   tb = time_base_meta(args, tmp_path, print)
   assert tb["kind"] == "tempo" and tb["dance_period_beats"] == {"waltz": 3, "tango": 2}
   assert tb["period_lock"] == 8.0 and tb["period_lock_periods"] == {"upper": 1, "lower": 2}
+  assert tb["style_period_lock"] == {"waltz": 0.0, "tango": 2.5}
+  args.style_period_lock = train.parse_style_weights("")
+  assert "style_period_lock" not in time_base_meta(args, tmp_path, print)
   args.tempo_ref = 0.0
   assert time_base_meta(args, tmp_path, print) == {"kind": "fixed"}
   # The one command refuses a reach outside 1..4 or not two integers before doing anything.
   for bad in ("0,2", "1,5", "2", "1,2,1", "a,b"):
     with pytest.raises(SystemExit) as e:
       train.main(["--run", str(tmp_path / "never"), "--period-lock-periods", bad])
+    assert e.value.code == 2
+  # ... and per-style weights outside 0..100, of unknown styles or not STYLE=B.
+  for bad in ("waltz=101", "waltz=-1", "foxtrot=2", "waltz", "waltz=x"):
+    with pytest.raises(SystemExit) as e:
+      train.main(["--run", str(tmp_path / "never"), "--style-period-lock", bad])
     assert e.value.code == 2
   assert not (tmp_path / "never").exists()

@@ -1066,6 +1066,57 @@ TEST(WarpedSession, PeriodLockDefaultSnapshotAndChanges) {
   EXPECT_FALSE(fresh->SetSampling(unlocked).ok());
 }
 
+TEST(WarpedSession, PerStylePeriodLockFollowsTheTopStyle) {
+  // time_base.style_period_lock {"waltz": 0} with period_lock 6: a waltz session is unlocked, a tango or
+  // "none" session locked at 6, a mix takes its top style's, and SetStyle and Restore switch it.
+  testing::TinyModelOptions o;
+  o.tempo_reference_bpm = 105.0;
+  o.style_reference_bpm = {{"waltz", 90.0}, {"tango", 120.0}};
+  o.dance_period_beats = {{"waltz", 3.0}, {"tango", 2.0}};
+  o.period_lock = 6.0;
+  auto uniform = LoadTinyModel(o);
+  o.style_period_lock = {{"waltz", 0.0}};
+  auto model = LoadTinyModel(o);
+  EXPECT_EQ(model->StylePeriodLock(0), 0.0f);  // waltz
+  EXPECT_EQ(model->StylePeriodLock(1), 6.0f);  // tango: not named, the default
+  EXPECT_EQ(model->StylePeriodLock(2), 6.0f);  // "none"
+  EXPECT_EQ(uniform->StylePeriodLock(0), 6.0f);
+  const std::vector<float> audio = testing::ClickAudio(8.0, 110.0);
+  auto session = [&](std::shared_ptr<const Model> m, std::vector<std::pair<std::string, float>> style, float lock) {
+    SamplingOptions sampling = Sampling(1.0f);
+    sampling.period_lock = lock;
+    SessionOptions opt = Opts(9, sampling);
+    opt.style = std::move(style);
+    return MakeSession(std::move(m), opt);
+  };
+  auto waltz = session(model, {{"waltz", 1.0f}}, kModelDefaultPeriodLock);
+  EXPECT_EQ(waltz->period_lock(), 0.0f);
+  EXPECT_EQ(session(model, {{"tango", 1.0f}}, kModelDefaultPeriodLock)->period_lock(), 6.0f);
+  EXPECT_EQ(session(model, {}, kModelDefaultPeriodLock)->period_lock(), 6.0f);
+  EXPECT_EQ(session(model, {{"waltz", 0.3f}, {"tango", 0.7f}}, kModelDefaultPeriodLock)->period_lock(), 6.0f);
+  EXPECT_EQ(session(model, {{"waltz", 0.7f}, {"tango", 0.3f}}, kModelDefaultPeriodLock)->period_lock(), 0.0f);
+  EXPECT_EQ(session(model, {{"waltz", 1.0f}}, 4.0f)->period_lock(), 4.0f);  // an explicit weight wins
+  // The waltz dances exactly as an explicitly unlocked waltz of the uniform model, which differs from its
+  // locked waltz (so the comparison could fail).
+  const std::vector<PoseFrame> by_style = RunStream(*waltz, audio, {3000});
+  ExpectSameFrames(by_style, RunStream(*session(uniform, {{"waltz", 1.0f}}, 0.0f), audio, {3000}));
+  const std::vector<PoseFrame> locked = RunStream(*session(uniform, {{"waltz", 1.0f}}, kModelDefaultPeriodLock),
+                                                  audio, {3000});
+  ASSERT_EQ(locked.size(), by_style.size());
+  EXPECT_GT(CodesDiffer(locked, by_style, 0), static_cast<int>(locked.size()) / 3);
+  // SetStyle switches the default; a snapshot carries it into a session opened with another style.
+  auto s = session(model, {{"tango", 1.0f}}, kModelDefaultPeriodLock);
+  ASSERT_TRUE(s->SetStyle({{"waltz", 1.0f}}).ok());
+  EXPECT_EQ(s->period_lock(), 0.0f);
+  absl::StatusOr<SessionSnapshot> snap = s->Snapshot();
+  ASSERT_TRUE(snap.ok());
+  auto restored = session(model, {{"tango", 1.0f}}, kModelDefaultPeriodLock);
+  ASSERT_TRUE(restored->Restore(*snap).ok());
+  EXPECT_EQ(restored->period_lock(), 0.0f);
+  ASSERT_TRUE(restored->SetStyle({{"tango", 1.0f}}).ok());
+  EXPECT_EQ(restored->period_lock(), 6.0f);
+}
+
 TEST(WarpedSession, RefusesABadTimeBase) {
   // Reference tempo outside 30..300 BPM is refused when the model loads.
   testing::TinyModelOptions o;
@@ -1115,6 +1166,23 @@ TEST(WarpedSession, RefusesABadTimeBase) {
     ASSERT_FALSE(m.ok()) << style << " " << beats << " " << lock;
     EXPECT_TRUE(absl::StrContains(m.status().message(), message)) << m.status();
   }
+  // Per-style lock weights: in 0..100, known styles, and dance periods to lock to.
+  o.dance_period_beats = {{"waltz", 3.0}};
+  o.period_lock = -1.0;
+  for (const auto& [style, lock, periods, message] :
+       std::vector<std::tuple<std::string, double, bool, std::string>>{
+           {"waltz", 101.0, true, "style_period_lock['waltz'] must be in 0..100"},
+           {"waltz", -1.0, true, "style_period_lock['waltz'] must be in 0..100"},
+           {"salsa", 4.0, true, "style_period_lock names unknown style 'salsa'"},
+           {"waltz", 4.0, false, "style_period_lock needs dance_period_beats"}}) {
+    o.style_period_lock = {{style, lock}};
+    if (!periods) o.dance_period_beats.clear();
+    ASSERT_TRUE(testing::TinyModelWriter(o).WriteFile(path).ok());
+    m = LoadModel(path);
+    ASSERT_FALSE(m.ok()) << style << " " << lock;
+    EXPECT_TRUE(absl::StrContains(m.status().message(), message)) << m.status();
+  }
+  o.style_period_lock.clear();
   // Period lock periods: integers in 1..4 per stream.
   o.dance_period_beats = {{"waltz", 3.0}};
   o.period_lock = 8.0;
