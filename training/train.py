@@ -197,6 +197,10 @@ def main(argv=None) -> int:
                   help="tempo-normalised runs: per-style period lock weights overriding --period-lock for "
                        "sessions of that top style (time_base.style_period_lock, each 0..100; '' = none); the "
                        "waltzes here follow the tempo unlocked (docs/training.md)")
+  ap.add_argument("--period-lock-sharpness", type=float, default=10.0,
+                  help="tempo-normalised runs: the period lock kernel's sharpness over code similarity "
+                       "(time_base.period_lock_sharpness, 1..100; the engine's default without the key is 20; "
+                       "docs/model.md section 6)")
   ap.add_argument("--period-lock-periods", default="1,2", metavar="UPPER,LOWER",
                   help="tempo-normalised runs: how many dance periods back each stream's period lock reaches "
                        "(time_base.period_lock_periods, integers 1..4; docs/model.md section 6); the lower "
@@ -218,6 +222,8 @@ def main(argv=None) -> int:
   args = ap.parse_args(argv)
   if not 0.0 <= args.period_lock <= 100.0:
     ap.error(f"--period-lock must be in [0, 100], got {args.period_lock}")
+  if not 1.0 <= args.period_lock_sharpness <= 100.0:
+    ap.error(f"--period-lock-sharpness must be in [1, 100], got {args.period_lock_sharpness}")
   try:
     args.style_period_lock = parse_style_weights(args.style_period_lock)
   except ValueError as e:

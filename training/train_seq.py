@@ -327,7 +327,7 @@ def stage_engine_eval(args, vqs, run: pathlib.Path, log) -> dict:
 def time_base_meta(args, run: pathlib.Path, log) -> dict:
   """The exported model's time_base metadata (docs/model.md sections 1 and 6): fixed-rate, or tempo-normalised
   with the style reference tempi, the bar clock if on, the dance periods and the period lock's default weight,
-  per-style weights and reach (periods back per stream)."""
+  per-style weights, kernel sharpness and reach (periods back per stream)."""
   if args.tempo_ref <= 0:
     return {"kind": "fixed"}
   tb = {"kind": "tempo", "reference_bpm": float(args.tempo_ref), "style_reference_bpm": style_refs_of(args, run, log)}
@@ -335,6 +335,9 @@ def time_base_meta(args, run: pathlib.Path, log) -> dict:
     tb["bar_clock"] = bar_clock_of(args)
   tb["dance_period_beats"] = dance_periods_of(args, run, log)
   tb["period_lock"] = float(getattr(args, "period_lock", 0.0))
+  sharpness = getattr(args, "period_lock_sharpness", None)
+  if sharpness is not None:
+    tb["period_lock_sharpness"] = float(sharpness)
   style_locks = getattr(args, "style_period_lock", None)
   if style_locks:
     tb["style_period_lock"] = {name: float(b) for name, b in style_locks.items()}

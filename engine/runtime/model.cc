@@ -179,6 +179,14 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
         }
         m->style_period_lock_.assign(per.begin(), per.end());
       }
+      if (tb.contains("period_lock_sharpness")) {
+        const nlohmann::json& sh = tb["period_lock_sharpness"];
+        const double v = sh.is_number() ? sh.get<double>() : 0.0;
+        if (!(v >= 1.0 && v <= 100.0)) {
+          return absl::InvalidArgumentError("weights metadata: time_base.period_lock_sharpness must be a number in 1..100");
+        }
+        m->period_lock_sharpness_ = static_cast<float>(v);
+      }
       if (tb.contains("period_lock_periods")) {
         // {"upper": n, "lower": n}: each stream's lock repeats the codes of n dance periods back (1..4).
         const nlohmann::json& pp = tb["period_lock_periods"];

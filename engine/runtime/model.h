@@ -30,6 +30,10 @@ inline constexpr float kCrouchHeightFraction = 0.83f;
 // after 32 by up to 81 / 18 / 1.7 mm, after 16 by < 0.05 mm).
 inline constexpr int kCodeHeightSteps = 16;
 
+// The period lock's kernel exp((s - 1) x sharpness) over a code's cosine similarity s to the target, for
+// models without time_base.period_lock_sharpness: 1 for the target code itself, 0.37 at s = 0.95 (the
+// typical nearest code of the shipped codebooks), 0.007 at s = 0.75.
+constexpr float kDefaultPeriodLockSharpness = 20.0f;
 // The most dance periods a stream's period lock may reach back (time_base.period_lock_periods).
 inline constexpr int kMaxPeriodLockPeriods = 4;
 
@@ -91,6 +95,10 @@ class Model {
   // the lag is n x the dance period in whole steps (Session::lock_lag). Stream 0 upper, 1 lower. Two for
   // the lower body repeats a two-period figure (a waltz's box step is two bars, one led by each foot).
   int period_lock_periods(int stream) const { return period_lock_periods_[stream]; }
+  // The sharpness of the period lock's kernel over code similarity (metadata "time_base": {...,
+  // "period_lock_sharpness": S}, 1..100; default kDefaultPeriodLockSharpness). Lower spreads the lock's
+  // pull from the target code to its neighbours in the codebook (docs/model.md section 6).
+  float period_lock_sharpness() const { return period_lock_sharpness_; }
   // The style guidance weight sessions use when SamplingOptions::guidance is negative (metadata
   // "sampling": {"guidance": W}, 0..100); 1 = off (models without it).
   float default_guidance() const { return default_guidance_; }
@@ -132,6 +140,7 @@ class Model {
   float default_period_lock_ = 0.0f;
   std::vector<float> style_period_lock_;      // per style row (n_styles)
   std::array<int, 2> period_lock_periods_ = {1, 1};  // upper, lower
+  float period_lock_sharpness_ = kDefaultPeriodLockSharpness;
   float default_guidance_ = 1.0f;
   float default_top_p_ = 1.0f;
   std::array<RowMatrix, 2> unit_codebook_;    // upper, lower

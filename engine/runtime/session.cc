@@ -16,9 +16,6 @@ constexpr int kPreDims = audio::kPreDims;
 // The furthest the lock can reach back: kMaxPeriodLockPeriods (4) periods of 16 beats at 30 BPM, 240 steps each.
 constexpr size_t kMaxCodeHistory = 1024;
 static_assert(kMaxCodeHistory >= kMaxPeriodLockPeriods * 240);
-// Period lock kernel exp((s - 1) x sharpness) of the similarity s to the target: 1 for the target code
-// itself, 0.37 at s = 0.95 (the typical nearest code), 0.007 at s = 0.75.
-constexpr float kLockSharpness = 20.0f;
 
 }  // namespace
 
@@ -331,14 +328,16 @@ void Session::ApplyPeriodLock(int stream, absl::Span<float> logits) {
   // period_lock_periods): a constant lag,
   // so a locked dance repeats its codes in order. (Blending the codes at floor(L) and ceil(L) made a locked
   // dance stutter, repeating or skipping a code whenever it switched lag: FID_k 72 against 37 at weight 8.)
-  // The bias of code i is lock x exp((s_i - 1) x kLockSharpness), s_i its cosine similarity to the target.
+  // The bias of code i is lock x exp((s_i - 1) x sharpness), s_i its cosine similarity to the target and
+  // sharpness the model's period_lock_sharpness (20 unless its metadata says otherwise).
   const RowMatrix& unit = model_->unit_codebook(stream);
   const float lock = period_lock();
+  const float sharpness = model_->period_lock_sharpness();
   const auto& [up, low] = code_history_[code_history_.size() - lock_lag(stream)];
   lock_sim_.resize(unit.rows());
   lock_sim_.noalias() = unit * unit.row(stream == 0 ? up : low).transpose();
   for (size_t i = 0; i < logits.size(); ++i) {
-    logits[i] += lock * std::exp((lock_sim_[static_cast<Eigen::Index>(i)] - 1.0f) * kLockSharpness);
+    logits[i] += lock * std::exp((lock_sim_[static_cast<Eigen::Index>(i)] - 1.0f) * sharpness);
   }
 }
 

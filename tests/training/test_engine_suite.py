@@ -56,3 +56,43 @@ def test_summary_flags_a_draw_outside_the_band(tmp_path):
   (tmp_path / "s0" / "metrics.json").write_text(json.dumps(_metrics(10.0, 6.0)))  # 6 vs 8: -25 %
   assert not es.summarize(tmp_path)["div_inside_20pct"]
   assert "tempo" not in es.summarize(tmp_path)
+
+
+def test_summary_fills_the_songs_it_did_not_run_from_another_suite(tmp_path):
+  import pytest
+  base, part = tmp_path / "base", tmp_path / "part"
+  base.mkdir()
+  part.mkdir()
+  (base / "tempo_0.json").write_text(json.dumps(_tempo([0, 2], [1.0, 0.5, 1.0, 0.2], [1.0, 0.8])))
+  (base / "tempo_1.json").write_text(json.dumps(_tempo([1], [0.0, 0.4], [0.6, 1.2])))
+  # The partial suite ran song "a" only, on the same seeds.
+  for lane, seeds, ratios, pooled in ((0, [0, 2], [0.9, 0.7], 0.95), (1, [1], [0.8], 0.85)):
+    (part / f"tempo_{lane}.json").write_text(json.dumps(
+        {"seeds": seeds, "rows": [{"id": "a", "seed": s, "ratio": r} for s, r in zip(seeds, ratios)],
+         "pooled_rows": [{"id": "a", "ratio": pooled}]}))
+  t = es.summarize(part, base)["tempo"]
+  assert t["seeds"] == [0, 1, 2] and t["runs"] == 6
+  assert math.isclose(t["per_song"]["a"], (0.9 + 0.7 + 0.8) / 3)      # its own runs
+  assert math.isclose(t["per_song"]["b"], (1.0 + 0.2 + 0.4) / 3)      # the base suite's
+  assert math.isclose(t["pooled_per_song"]["a"], (2 * 0.95 + 0.85) / 3)
+  assert math.isclose(t["pooled_per_song"]["b"], (2 * 0.8 + 1.2) / 3)
+  assert math.isclose(t["mean_ratio"], (0.9 + 0.7 + 0.8 + 1.0 + 0.2 + 0.4) / 6)
+  # A base suite on other seeds cannot fill in.
+  (base / "tempo_1.json").write_text(json.dumps(_tempo([3], [0.0, 0.4], [0.6, 1.2])))
+  with pytest.raises(ValueError, match="seeds"):
+    es.summarize(part, base)
+
+
+def test_engine_eval_refuses_a_bad_song_subset_before_generating(tmp_path):
+  import pytest
+
+  from training.eval import engine_eval
+  for argv in (["--songs", "tang_DANCE_C_6"],                                   # no --fill-from
+               ["--fill-from", str(tmp_path)],                                  # no --songs
+               ["--songs", "tang_DANCE_X_1", "--fill-from", str(tmp_path)]):    # not a validation song
+    with pytest.raises(SystemExit) as e:
+      engine_eval.main(["--out-dir", str(tmp_path / "out")] + argv)
+    assert e.value.code == 2
+  assert not (tmp_path / "out").exists()
+  with pytest.raises(SystemExit):
+    es.main(["--model", "m.dncw", "--out-dir", str(tmp_path / "out"), "--songs", "tang_DANCE_C_6"])

@@ -132,11 +132,12 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
   (tmp_path / "style_reference_bpm.json").write_text(json.dumps({"waltz": 87.0, "tango": 128.0}))
   (tmp_path / "dance_period_beats.json").write_text(json.dumps({"waltz": 3, "tango": 2}))
   args = argparse.Namespace(tempo_ref=105.0, period_lock=8.0, period_lock_periods=[1, 2], bar_clock=False,
-                            style_period_lock=train.parse_style_weights("waltz=0, tango=2.5"))
+                            style_period_lock=train.parse_style_weights("waltz=0, tango=2.5"),
+                            period_lock_sharpness=10.0)
   tb = time_base_meta(args, tmp_path, print)
   assert tb["kind"] == "tempo" and tb["dance_period_beats"] == {"waltz": 3, "tango": 2}
   assert tb["period_lock"] == 8.0 and tb["period_lock_periods"] == {"upper": 1, "lower": 2}
-  assert tb["style_period_lock"] == {"waltz": 0.0, "tango": 2.5}
+  assert tb["style_period_lock"] == {"waltz": 0.0, "tango": 2.5} and tb["period_lock_sharpness"] == 10.0
   args.style_period_lock = train.parse_style_weights("")
   assert "style_period_lock" not in time_base_meta(args, tmp_path, print)
   args.tempo_ref = 0.0
@@ -150,5 +151,9 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
   for bad in ("waltz=101", "waltz=-1", "foxtrot=2", "waltz", "waltz=x"):
     with pytest.raises(SystemExit) as e:
       train.main(["--run", str(tmp_path / "never"), "--style-period-lock", bad])
+    assert e.value.code == 2
+  for bad in ("0.5", "101"):
+    with pytest.raises(SystemExit) as e:
+      train.main(["--run", str(tmp_path / "never"), "--period-lock-sharpness", bad])
     assert e.value.code == 2
   assert not (tmp_path / "never").exists()

@@ -2,10 +2,12 @@
 songs, against the real dances and the baselines (training.eval.evaluate), plus rendered strips.
 
     .venv/bin/python -m training.eval.engine_eval --model models/default.dncw --out-dir training/runs/X/engine
-        [--seed 0] [--temperature 1] [--guidance W] [--top-p P] [--period-lock B]
+        [--seed 0] [--temperature 1] [--guidance W] [--top-p P] [--period-lock B] [--songs ID,ID --fill-from D0]
 
 Writes <out-dir>/dances/<id>.json (dance-motion/v1 from dance-generate), metrics.md, metrics.json and
-strip_<id>.png / beats_<id>.png for the first two songs. Needs librosa's beat cache (the project .venv).
+strip_<id>.png / beats_<id>.png for the first two songs. With --songs, only those songs are generated and the
+other validation songs' dances are read from D0/s<seed>/dances/ (an earlier suite's draw of the same seed;
+training.eval.engine_suite --songs). Needs librosa's beat cache (the project .venv).
 """
 from __future__ import annotations
 
@@ -56,15 +58,28 @@ def main(argv=None) -> None:
   ap.add_argument("--top-p", type=float, default=None, help="dance-generate --top-p (default: the model's)")
   ap.add_argument("--period-lock", type=float, default=None,
                   help="dance-generate --period-lock (default: the model's; 0 = off)")
+  ap.add_argument("--songs", default=None, help="comma-separated validation motion ids to generate (needs "
+                  "--fill-from)")
+  ap.add_argument("--fill-from", default=None, help="a suite directory whose s<seed>/dances/ hold the other songs")
   args = ap.parse_args(argv)
+  ids = td.paired_ids(td.load_split()["validation"])
+  songs = set(args.songs.split(",")) if args.songs else set(ids)
+  if not songs <= set(ids):
+    ap.error(f"--songs: not validation songs: {', '.join(sorted(songs - set(ids)))}")
+  if (args.songs is None) != (args.fill_from is None):
+    ap.error("--songs and --fill-from go together")
   out = pathlib.Path(args.out_dir)
   (out / "dances").mkdir(parents=True, exist_ok=True)
-  ids = td.paired_ids(td.load_split()["validation"])
   dances = []
   for mid in ids:
     z = np.load(td.MOTION_CACHE / f"{mid}.npz")
-    path = generate_song(args.model, mid, out / "dances" / f"{mid}.json", args.seed, args.temperature,
-                         args.period_lock, guidance=args.guidance, top_p=args.top_p)
+    if mid in songs:
+      path = generate_song(args.model, mid, out / "dances" / f"{mid}.json", args.seed, args.temperature,
+                           args.period_lock, guidance=args.guidance, top_p=args.top_p)
+    else:
+      path = pathlib.Path(args.fill_from) / f"s{args.seed}" / "dances" / f"{mid}.json"
+      if not path.exists():
+        ap.error(f"--fill-from: {path} does not exist")
     d = load_dance(path, audio=str(z["audio_path"]))  # audio_offset_s: the song time of the first frame
     dances.append(Dance(mid, d.positions, d.fps, d.audio_path, d.audio_offset_s, str(z["style"])))
   ev = Evaluator.default()

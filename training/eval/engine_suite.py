@@ -1,7 +1,7 @@
 """One model's full engine measurement: several metric-table draws and tempo following over many seeds.
 
     .venv/bin/python -m training.eval.engine_suite --model M --out-dir D [--draws 6] [--tempo-seeds 16]
-        [--lanes 2] [--summarize-only]
+        [--lanes 2] [--summarize-only] [--songs ID,ID --fill-from D0]
 
 Runs `training.eval.engine_eval` once per draw seed (0 .. draws-1) into D/s<seed>/ and
 `training.eval.engine_tempo` on seeds 0 .. tempo-seeds-1 split over the lanes (D/tempo_<lane>.json), `lanes`
@@ -11,6 +11,11 @@ and the tempo ratio per run over all seeds (mean, bootstrap s.e., median), per s
 ideal-follower calibration. A draw or lane whose output already exists is not run again, so a stopped
 suite resumes; --summarize-only only aggregates what is there. Both tools honour DANCE_BUILD_DIR. About
 14 min on this 2-core machine with nothing beside it (2026-12-03).
+
+--songs with --fill-from measures a change that touches only some songs (e.g. one style's setting) at
+the cost of those songs: only they are generated (draws and tempo), and the other validation songs' dances
+and tempo runs are taken from the finished suite D0 (same draw seeds, same tempo seeds), which must be the
+same model with the change undone for those songs to be unaffected, so the table is over all songs as usual.
 
 One draw is statistically weak: FID_k of one model varies 16-40 over seeds, the per-run tempo ratio has an
 s.e. of ~0.1 on 8 seeds. Compare models on this suite, not on one run.
@@ -46,7 +51,8 @@ def draw_commands(model: str, out: pathlib.Path, draws: int, passthrough: list[s
 
 def tempo_commands(model: str, out: pathlib.Path, seeds: int, lanes: int,
                    passthrough: list[str]) -> list[tuple[pathlib.Path, list[str]]]:
-  """(report path, command) per lane; lane k takes seeds k, k + lanes, ... (balanced)."""
+  """(report path, command) per lane; lane k takes seeds k, k + lanes, ... (balanced). `passthrough` may
+  hold --songs."""
   cmds = []
   for lane in range(lanes):
     lane_seeds = [str(s) for s in range(lane, seeds, lanes)]
@@ -77,8 +83,30 @@ def run_parallel(jobs: list[tuple[pathlib.Path, list[str]]], lanes: int) -> None
     raise RuntimeError("engine_suite: failed, see " + ", ".join(failed))
 
 
-def summarize(out: pathlib.Path) -> dict:
-  """Aggregates D/s*/metrics.json and D/tempo_*.json (whatever exists)."""
+def tempo_reports(out: pathlib.Path, fill_from: pathlib.Path | None) -> list[dict]:
+  """D/tempo_*.json, plus (with fill_from) one report of fill_from's runs of the songs D did not run, on the
+  seeds D ran."""
+  reports = [json.loads(p.read_text()) for p in sorted(out.glob("tempo_*.json"))]
+  if fill_from is None or not reports:
+    return reports
+  own = {r["id"] for rep in reports for r in rep["rows"]}
+  seeds = sorted({s for rep in reports for s in rep["seeds"]})
+  filled = []
+  for p in sorted(fill_from.glob("tempo_*.json")):
+    rep = json.loads(p.read_text())
+    if not set(rep["seeds"]) <= set(seeds):
+      raise ValueError(f"engine_suite: {p} ran seeds {rep['seeds']}, not all among this suite's {seeds}")
+    filled.append({"rows": [r for r in rep["rows"] if r["id"] not in own],
+                   "pooled_rows": [r for r in rep["pooled_rows"] if r["id"] not in own],
+                   "seeds": rep["seeds"], "filled": True})
+  if sorted(s for rep in filled for s in rep["seeds"]) != seeds:
+    raise ValueError(f"engine_suite: {fill_from}'s tempo runs are not on this suite's seeds {seeds}")
+  return reports + filled
+
+
+def summarize(out: pathlib.Path, fill_from: pathlib.Path | None = None) -> dict:
+  """Aggregates D/s*/metrics.json and D/tempo_*.json (whatever exists; with fill_from, the tempo runs of the
+  songs D did not run come from there)."""
   draws = {}
   paths = [p for p in out.glob("s*/metrics.json") if re.fullmatch(r"s\d+", p.parent.name)]
   for path in sorted(paths, key=lambda p: int(p.parent.name[1:])):
@@ -92,10 +120,9 @@ def summarize(out: pathlib.Path) -> dict:
     summary["real"] = real
     summary["div_inside_20pct"] = all(abs(d[k] / real[k] - 1) <= 0.2 for d in draws.values() for k in ("div_k", "div_g"))
   rows, pooled, cal, seeds = [], [], [], []
-  for path in sorted(out.glob("tempo_*.json")):
-    rep = json.loads(path.read_text())
+  for rep in tempo_reports(out, fill_from):
     rows += rep["rows"]
-    seeds += rep["seeds"]
+    seeds += [] if rep.get("filled") else rep["seeds"]
     pooled += [(r["id"], r["ratio"], len(rep["seeds"])) for r in rep["pooled_rows"]]
     cal += [c for r in rep["pooled_rows"] for c in r.get("perfect_follower_ratios", []) if _finite(c)]
   if rows:
@@ -155,17 +182,26 @@ def main(argv=None) -> None:
   ap.add_argument("--guidance", type=float, default=None)
   ap.add_argument("--top-p", type=float, default=None)
   ap.add_argument("--period-lock", type=float, default=None)
+  ap.add_argument("--songs", default=None, help="comma-separated motion ids (default: every validation song); "
+                  "needs --fill-from")
+  ap.add_argument("--fill-from", default=None, help="a finished suite of the same model whose dances and tempo "
+                  "runs of the songs not in --songs are used")
   args = ap.parse_args(argv)
+  if (args.songs is None) != (args.fill_from is None):
+    ap.error("--songs and --fill-from go together")
+  fill = pathlib.Path(args.fill_from) if args.fill_from else None
   out = pathlib.Path(args.out_dir)
   out.mkdir(parents=True, exist_ok=True)
   passthrough = []
   for flag in ("temperature", "guidance", "top_p", "period_lock"):
     if getattr(args, flag) is not None:
       passthrough += ["--" + flag.replace("_", "-"), str(getattr(args, flag))]
+  subset = ["--songs", args.songs] if args.songs else []
   if not args.summarize_only:
-    run_parallel(draw_commands(args.model, out, args.draws, passthrough), args.lanes)
-    run_parallel(tempo_commands(args.model, out, args.tempo_seeds, args.lanes, passthrough), args.lanes)
-  summary = summarize(out)
+    run_parallel(draw_commands(args.model, out, args.draws, passthrough + subset +
+                               (["--fill-from", args.fill_from] if fill else [])), args.lanes)
+    run_parallel(tempo_commands(args.model, out, args.tempo_seeds, args.lanes, passthrough + subset), args.lanes)
+  summary = summarize(out, fill)
   (out / "summary.json").write_text(json.dumps(summary, indent=1))
   text = markdown(summary, args.model)
   (out / "summary.md").write_text(text)

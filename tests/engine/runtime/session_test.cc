@@ -1117,6 +1117,36 @@ TEST(WarpedSession, PerStylePeriodLockFollowsTheTopStyle) {
   EXPECT_EQ(restored->period_lock(), 6.0f);
 }
 
+TEST(WarpedSession, PeriodLockSharpnessFromTheModel) {
+  // time_base.period_lock_sharpness: absent = 20; an explicit 20 dances exactly as absent; a softer kernel
+  // (5: the lock also pulls toward the target's neighbours in the codebook) dances differently.
+  testing::TinyModelOptions o;
+  o.tempo_reference_bpm = 105.0;
+  o.style_reference_bpm = {{"waltz", 90.0}};
+  o.dance_period_beats = {{"waltz", 3.0}};
+  o.period_lock = 6.0;
+  auto absent = LoadTinyModel(o);
+  o.period_lock_sharpness = 20.0;
+  auto explicit20 = LoadTinyModel(o);
+  o.period_lock_sharpness = 5.0;
+  auto soft = LoadTinyModel(o);
+  EXPECT_EQ(absent->period_lock_sharpness(), kDefaultPeriodLockSharpness);
+  EXPECT_EQ(kDefaultPeriodLockSharpness, 20.0f);
+  EXPECT_EQ(soft->period_lock_sharpness(), 5.0f);
+  const std::vector<float> audio = testing::ClickAudio(8.0, 110.0);
+  auto run = [&](std::shared_ptr<const Model> m) {
+    SessionOptions opt = Opts(9, Sampling(1.0f));
+    opt.style = {{"waltz", 1.0f}};
+    auto s = MakeSession(std::move(m), opt);
+    return RunStream(*s, audio, {3000});
+  };
+  const std::vector<PoseFrame> base = run(absent);
+  ExpectSameFrames(base, run(explicit20));
+  const std::vector<PoseFrame> softer = run(soft);
+  ASSERT_EQ(softer.size(), base.size());
+  EXPECT_GT(CodesDiffer(base, softer, 0), 0);
+}
+
 TEST(WarpedSession, RefusesABadTimeBase) {
   // Reference tempo outside 30..300 BPM is refused when the model loads.
   testing::TinyModelOptions o;
@@ -1183,6 +1213,17 @@ TEST(WarpedSession, RefusesABadTimeBase) {
     EXPECT_TRUE(absl::StrContains(m.status().message(), message)) << m.status();
   }
   o.style_period_lock.clear();
+  // Lock sharpness: a number in 1..100.
+  o.dance_period_beats = {{"waltz", 3.0}};
+  for (double sharpness : {0.5, 101.0, -3.0}) {
+    o.period_lock_sharpness = sharpness;
+    ASSERT_TRUE(testing::TinyModelWriter(o).WriteFile(path).ok());
+    m = LoadModel(path);
+    ASSERT_FALSE(m.ok()) << sharpness;
+    EXPECT_TRUE(absl::StrContains(m.status().message(), "period_lock_sharpness must be a number in 1..100"))
+        << m.status();
+  }
+  o.period_lock_sharpness = 0.0;
   // Period lock periods: integers in 1..4 per stream.
   o.dance_period_beats = {{"waltz", 3.0}};
   o.period_lock = 8.0;

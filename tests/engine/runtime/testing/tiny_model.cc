@@ -127,6 +127,7 @@ WeightsWriter TinyModelWriter(const TinyModelOptions& o) {
     for (const auto& [name, beats] : o.dance_period_beats) meta["time_base"]["dance_period_beats"][name] = beats;
     if (o.period_lock >= 0.0) meta["time_base"]["period_lock"] = o.period_lock;
     for (const auto& [name, lock] : o.style_period_lock) meta["time_base"]["style_period_lock"][name] = lock;
+    if (o.period_lock_sharpness != 0.0) meta["time_base"]["period_lock_sharpness"] = o.period_lock_sharpness;
     if (o.upper_lock_periods != 0) meta["time_base"]["period_lock_periods"]["upper"] = o.upper_lock_periods;
     if (o.lower_lock_periods != 0) meta["time_base"]["period_lock_periods"]["lower"] = o.lower_lock_periods;
   }

@@ -40,6 +40,7 @@ struct TinyModelOptions {
   std::vector<std::pair<std::string, double>> dance_period_beats;   // time_base.dance_period_beats
   double period_lock = -1.0;  // >= 0: time_base.period_lock (the sessions' default lock weight)
   std::vector<std::pair<std::string, double>> style_period_lock;    // time_base.style_period_lock
+  double period_lock_sharpness = 0.0;  // != 0: time_base.period_lock_sharpness
   int upper_lock_periods = 0;  // != 0: time_base.period_lock_periods.upper
   int lower_lock_periods = 0;  // != 0: time_base.period_lock_periods.lower
   double guidance = -1.0;     // >= 0: sampling.guidance (the sessions' default style guidance)
