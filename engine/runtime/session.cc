@@ -89,11 +89,9 @@ absl::Status Session::ApplyStyle(const std::vector<std::pair<std::string, float>
   style_is_none_ = none;
   model_->sequence().SetStyle(model_->sequence().StyleVector(rows), &cond_);
   style_ = style;
-  // The metre, dance period and period lock weight follow the style with the largest weight (the first of
-  // equals).
-  const auto& top = *std::max_element(rows.begin(), rows.end(),
-                                      [](const auto& a, const auto& b) { return a.second < b.second; });
-  style_period_lock_ = model_->StylePeriodLock(top.first);
+  // The metre, dance period and period lock weight follow the style with the largest weight (TopStyleRow).
+  const int top = TopStyleRow(style);
+  style_period_lock_ = model_->StylePeriodLock(top);
   if (warped()) {
     // The style's reference tempo (weighted geometric mean for a mix): each style is learned at its own
     // typical tempo, so a song's octave folds consistently whatever its exact tempo (docs/model.md s. 1).
@@ -104,12 +102,25 @@ absl::Status Session::ApplyStyle(const std::vector<std::pair<std::string, float>
       style_reference_bpm_ = ref;
       warp_.clock.SetReference(ref);
     }
-    if (model_->bar_clock()) bar_frames_ = audio::BarClockFrames(model_->StyleBeatsPerBar(top.first), ref);
+    if (model_->bar_clock()) bar_frames_ = audio::BarClockFrames(model_->StyleBeatsPerBar(top), ref);
     // One dance period in warped steps: beats x (1800 / R warped frames per beat) / frames per step.
-    period_steps_ = model_->StyleDancePeriodBeats(top.first) * 60.0 * audio::kFrameRate / ref /
+    period_steps_ = model_->StyleDancePeriodBeats(top) * 60.0 * audio::kFrameRate / ref /
                     model_->config().frames_per_step;
   }
   return absl::OkStatus();
+}
+
+int Session::TopStyleRow(const std::vector<std::pair<std::string, float>>& style) const {
+  int top = model_->config().n_styles;  // "none" (also an empty mix)
+  float best = -1.0f;
+  for (const auto& [name, weight] : style) {
+    const absl::StatusOr<int> row = model_->StyleIndex(name);
+    if (row.ok() && weight > best) {
+      best = weight;
+      top = *row;
+    }
+  }
+  return top;
 }
 
 bool Session::StyleIsNone(const std::vector<std::pair<std::string, float>>& style) const {
@@ -452,7 +463,6 @@ absl::StatusOr<SessionSnapshot> Session::Snapshot() const {
   s.warp = warp_;
   s.bar_frames = bar_frames_;
   s.period_steps = period_steps_;
-  s.style_period_lock = style_period_lock_;
   s.code_history = code_history_;
   s.heading_history = heading_history_;
   s.crouch_load = crouch_load_;
@@ -505,7 +515,9 @@ absl::Status Session::Restore(const SessionSnapshot& s) {
   style_reference_bpm_ = warp_.clock.options().reference_bpm;
   bar_frames_ = s.bar_frames;
   period_steps_ = s.period_steps;
-  style_period_lock_ = s.style_period_lock;
+  // From the snapshot's style and this model (not copied: a snapshot of another model with the same shapes
+  // would otherwise bring that model's weight).
+  style_period_lock_ = model_->StylePeriodLock(TopStyleRow(style_));
   code_history_ = s.code_history;
   heading_history_ = s.heading_history;
   crouch_load_ = s.crouch_load;

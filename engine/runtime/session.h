@@ -116,7 +116,6 @@ struct SessionSnapshot {
   WarpState warp;
   double bar_frames = 0.0;
   double period_steps = 0.0;
-  float style_period_lock = 0.0f;
   std::deque<std::pair<int, int>> code_history;
   std::deque<double> heading_history;
   double crouch_load = 0.0;
@@ -191,6 +190,9 @@ class Session {
   // Guidance needs the unconditional lane only when the style is not "none" (with style "none" both lanes
   // are the same computation and lu + w (lc - lu) = lc).
   bool uses_guidance() const { return guidance() != 1.0f && !style_is_none_; }
+  // The row of the largest-weight entry of a (validated) style mix, the first of equals ("none" for an empty
+  // mix); ApplyStyle's choice for the metre, dance period and period lock.
+  int TopStyleRow(const std::vector<std::pair<std::string, float>>& style) const;
   // Whether every entry of a (validated) style mix with a weight is "none" (an empty mix is "none").
   bool StyleIsNone(const std::vector<std::pair<std::string, float>>& style) const;
   // Pointers to this step's music token (4F) and PRE (P), valid until the next PushAudio.

@@ -277,6 +277,14 @@ TEST(PerformIntegration, ListSessionsAndModelInfo) {
   EXPECT_EQ(mi.max_sessions(), 5);
   EXPECT_EQ(mi.skeleton().parents_size(), 24);
   EXPECT_EQ(mi.skeleton().parents(0), -1);
+  // Every style of the model has its period lock listed (the tiny model has no per-style weights: the
+  // default's).
+  ASSERT_GT(mi.styles_size(), 0);
+  EXPECT_EQ(mi.style_period_lock_size(), mi.styles_size());
+  for (const std::string& style : mi.styles()) {
+    ASSERT_EQ(mi.style_period_lock().count(style), 1u) << style;
+    EXPECT_EQ(mi.style_period_lock().at(style), mi.default_period_lock()) << style;
+  }
 
   grpc::ClientContext pctx;
   auto stream = stub->Perform(&pctx);

@@ -130,8 +130,11 @@ TEST(Convert, JsonStartAndControl) {
   ModelDescription m = Model();
   m.default_guidance = 3.0f;
   m.default_top_p = 0.9f;
+  m.style_period_lock = {{"waltz", 0.0f}, {"tango", 8.0f}};
   const nlohmann::json mj = ModelToJson(m);
   EXPECT_EQ(mj["default_guidance"].get<float>(), 3.0f);
+  EXPECT_EQ(mj["style_period_lock"]["waltz"].get<float>(), 0.0f);
+  EXPECT_EQ(mj["style_period_lock"]["tango"].get<float>(), 8.0f);
   EXPECT_FLOAT_EQ(mj["default_top_p"].get<float>(), 0.9f);
 }
 

@@ -72,11 +72,26 @@ def test_summary_fills_the_songs_it_did_not_run_from_another_suite(tmp_path):
          "pooled_rows": [{"id": "a", "ratio": pooled}]}))
   t = es.summarize(part, base)["tempo"]
   assert t["seeds"] == [0, 1, 2] and t["runs"] == 6
+  assert t["songs"] == ["a", "b"] and t["filled_from"] == str(base)
+  assert "over 2 songs" in es.markdown({"draws": {}, "tempo": t}, "m")
+  assert es.summarize(part)["tempo"]["songs"] == ["a"]  # alone it says it covers one song
   assert math.isclose(t["per_song"]["a"], (0.9 + 0.7 + 0.8) / 3)      # its own runs
   assert math.isclose(t["per_song"]["b"], (1.0 + 0.2 + 0.4) / 3)      # the base suite's
   assert math.isclose(t["pooled_per_song"]["a"], (2 * 0.95 + 0.85) / 3)
   assert math.isclose(t["pooled_per_song"]["b"], (2 * 0.8 + 1.2) / 3)
   assert math.isclose(t["mean_ratio"], (0.9 + 0.7 + 0.8 + 1.0 + 0.2 + 0.4) / 6)
+  # A base suite run at another temperature, or without the songs this one ran, cannot fill in.
+  hot = json.loads((base / "tempo_1.json").read_text())
+  (base / "tempo_1.json").write_text(json.dumps(dict(hot, temperature=1.1)))
+  with pytest.raises(ValueError, match="temperature"):
+    es.summarize(part, base)
+  (base / "tempo_1.json").write_text(json.dumps(hot))
+  only_b = json.loads((base / "tempo_0.json").read_text())
+  only_b["rows"] = [r for r in only_b["rows"] if r["id"] == "b"]
+  (base / "tempo_0.json").write_text(json.dumps(only_b))
+  with pytest.raises(ValueError, match="lacks songs"):
+    es.summarize(part, base)
+  (base / "tempo_0.json").write_text(json.dumps(_tempo([0, 2], [1.0, 0.5, 1.0, 0.2], [1.0, 0.8])))
   # A base suite on other seeds cannot fill in.
   (base / "tempo_1.json").write_text(json.dumps(_tempo([3], [0.0, 0.4], [0.6, 1.2])))
   with pytest.raises(ValueError, match="seeds"):

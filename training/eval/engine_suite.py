@@ -10,7 +10,7 @@ D/summary.json and D/summary.md: every draw's FID_k, FID_g, Div_k, Div_g, PFC an
 and the tempo ratio per run over all seeds (mean, bootstrap s.e., median), per song, seeds pooled, and the
 ideal-follower calibration. A draw or lane whose output already exists is not run again, so a stopped
 suite resumes; --summarize-only only aggregates what is there. Both tools honour DANCE_BUILD_DIR. About
-14 min on this 2-core machine with nothing beside it (2026-12-03).
+10 min on this 2-core machine with nothing beside it (2026-12-04; up to 17 with other work beside it).
 
 --songs with --fill-from measures a change that touches only some songs (e.g. one style's setting) at
 the cost of those songs: only they are generated (draws and tempo), and the other validation songs' dances
@@ -94,6 +94,13 @@ def tempo_reports(out: pathlib.Path, fill_from: pathlib.Path | None) -> list[dic
   filled = []
   for p in sorted(fill_from.glob("tempo_*.json")):
     rep = json.loads(p.read_text())
+    for key in ("seconds", "temperature"):
+      if any(rep.get(key) != mine.get(key) for mine in reports):
+        raise ValueError(f"engine_suite: {p} ran with {key} {rep.get(key)}, this suite with "
+                         f"{sorted({str(m.get(key)) for m in reports})}")
+    if not own <= {r["id"] for r in rep["rows"]}:
+      raise ValueError(f"engine_suite: {p} lacks songs this suite ran ({', '.join(sorted(own))}): "
+                       "not a full suite of the same songs")
     if not set(rep["seeds"]) <= set(seeds):
       raise ValueError(f"engine_suite: {p} ran seeds {rep['seeds']}, not all among this suite's {seeds}")
     filled.append({"rows": [r for r in rep["rows"] if r["id"] not in own],
@@ -137,6 +144,7 @@ def summarize(out: pathlib.Path, fill_from: pathlib.Path | None = None) -> dict:
       if _finite(ratio):
         pooled_song.setdefault(mid, []).append((ratio, n))
     summary["tempo"] = {
+        "songs": sorted({r["id"] for r in rows}), "filled_from": str(fill_from) if fill_from else None,
         "seeds": sorted(seeds), "runs": len(rows), "finite_runs": len(ratios),
         "mean_ratio": float(np.mean(ratios)), "mean_ratio_se": bootstrap_se(ratios),
         "median_ratio": float(np.median(ratios)),
@@ -161,7 +169,9 @@ def markdown(summary: dict, model: str) -> str:
   t = summary.get("tempo")
   if t:
     se = t["mean_ratio_se"]
-    lines += [f"Tempo following over {len(t['seeds'])} seeds ({t['finite_runs']}/{t['runs']} runs): per run mean "
+    filled = f"; songs it did not run from {t['filled_from']}" if t.get("filled_from") else ""
+    lines += [f"Tempo following over {len(t.get('songs', []))} songs, {len(t['seeds'])} seeds ({t['finite_runs']}/"
+              f"{t['runs']} runs{filled}): per run mean "
               f"**{t['mean_ratio']:.3f}** (s.e. {se:.3f}), median {t['median_ratio']:.3f}; seeds pooled "
               f"{t['pooled_mean_ratio']:.3f}; ideal follower with this spread {t['perfect_follower_mean_ratio']:.3f}",
               "", "| song | per run | pooled |", "|---|---|---|"]
