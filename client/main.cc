@@ -45,6 +45,7 @@ ABSL_FLAG(int, top_k, 0, "Top-k cut (0 = off).");
 ABSL_FLAG(double, top_p, 0.0, "Nucleus cut (1 = off; 0 = the model's default).");
 ABSL_FLAG(double, guidance, 0.0, "Style guidance weight (1 = off; 0 = the model's default). Also for load.");
 ABSL_FLAG(double, period_lock, -1.0, "Period lock weight (0 = off; negative = the model's default).");
+ABSL_FLAG(bool, raw_feet, false, "Foot lock off: legs and feet exactly as decoded (StreamHeader.raw_feet).");
 ABSL_FLAG(int, chunk_ms, 40, "Audio per message, ms.");
 ABSL_FLAG(std::string, token, "", "Bearer token (server --auth-token).");
 ABSL_FLAG(std::string, ca_cert, "", "PEM CA certificate: connect with TLS.");
@@ -120,6 +121,7 @@ int Perform() {
   if (absl::GetFlag(FLAGS_period_lock) >= 0.0) {
     po.header.mutable_sampling()->set_period_lock(static_cast<float>(absl::GetFlag(FLAGS_period_lock)));
   }
+  po.header.set_raw_feet(absl::GetFlag(FLAGS_raw_feet));
   ParseStyle(absl::GetFlag(FLAGS_style), &po.header);
   const int64_t total_frames = source->Total();
   const int rate = source->sample_rate();

@@ -83,6 +83,7 @@ absl::StatusOr<ValidatedHeader> ValidateHeader(const dance::v1::StreamHeader& h,
   v.config.seed = h.seed();
   v.client_name = h.client_name();
   v.omit_rotations = h.omit_rotations();
+  v.config.foot_lock = !h.raw_feet();
   return v;
 }
 
@@ -179,6 +180,7 @@ absl::StatusOr<dance::v1::StreamHeader> HeaderFromJson(const json& j) {
   if (any) *h.mutable_sampling() = sampling;
   if (j.contains("client_name") && j["client_name"].is_string()) h.set_client_name(j["client_name"].get<std::string>());
   if (j.contains("omit_rotations") && j["omit_rotations"].is_boolean()) h.set_omit_rotations(j["omit_rotations"].get<bool>());
+  if (j.contains("raw_feet") && j["raw_feet"].is_boolean()) h.set_raw_feet(j["raw_feet"].get<bool>());
   return h;
 }
 

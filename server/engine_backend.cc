@@ -62,6 +62,7 @@ class EngineSessionStream final : public EngineStream {
     if (o.period_lock < 0.0f) o.period_lock = now.period_lock;
     if (o.guidance < 0.0f) o.guidance = now.guidance;
     if (o.top_p < 0.0f) o.top_p = now.top_p;
+    o.foot_lock = now.foot_lock;  // a stream setting (StreamHeader.raw_feet), not the Control's
     return session_->SetSampling(o);
   }
 
@@ -99,6 +100,7 @@ class EngineBackendImpl final : public EngineBackend {
     o.style = config.style;
     o.seed = config.seed;
     o.sampling = ToEngine(config.sampling);
+    o.sampling.foot_lock = config.foot_lock;
     absl::StatusOr<std::unique_ptr<engine::Session>> s = engine::Session::Create(model_, o);
     if (!s.ok()) return s.status();
     return std::make_unique<EngineSessionStream>(*std::move(s));

@@ -47,6 +47,7 @@ struct StreamConfig {
   StyleMix style;              // empty = "none"
   uint64_t seed = 0;
   SamplingConfig sampling;
+  bool foot_lock = true;       // false = legs and feet as decoded (StreamHeader.raw_feet)
 };
 
 // What the loaded model tells clients (SessionInfo / ModelInfo).

@@ -46,6 +46,7 @@ def requests(pcm, rate, channels, args):
     header.sampling.temperature = args.temperature
     if args.period_lock is not None:  # absent: the model's default
         header.sampling.period_lock = args.period_lock
+    header.raw_feet = args.raw_feet
     if args.style:
         header.style.add(name=args.style, weight=1.0)
     yield dance_pb2.PerformRequest(header=header)
@@ -73,6 +74,7 @@ def main():
     p.add_argument("--temperature", type=float, default=1.0)
     p.add_argument("--style", default="")
     p.add_argument("--period-lock", type=float, default=None, help="0 = off (default: the model's)")
+    p.add_argument("--raw-feet", action="store_true", help="foot lock off: legs and feet as decoded")
     p.add_argument("--chunk-ms", type=int, default=40)
     p.add_argument("--realtime", action="store_true")
     p.add_argument("--token", default="", help="bearer token if the server requires one")

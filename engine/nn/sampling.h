@@ -48,6 +48,10 @@ struct SamplingOptions {
   // Crouch guard (sessions; docs/model.md section 6): after the pelvis has stayed low for longer than any
   // real dancer's crouch, the lower body samples only codes that stand. SampleCode ignores it.
   bool crouch_guard = true;
+  // Foot lock (sessions; docs/model.md section 7): planted feet are held still by bending the leg
+  // (engine/vq/foot_lock.h). A pose-stream clean-up after decoding; the codes do not change. SampleCode
+  // ignores it.
+  bool foot_lock = true;
 };
 
 // OK, or InvalidArgument naming the bad field (negative temperature, top_p outside (0, 1], ...).

@@ -25,6 +25,7 @@ Session::Session(std::shared_ptr<const Model> model, const SessionOptions& optio
       sampling_(options.sampling),
       generator_(options.seed),
       reconstructor_(model_->skeleton()),
+      foot_lock_(model_->skeleton()),
       sampler_(model_->config().codebook_size) {}
 
 Session::~Session() = default;
@@ -387,7 +388,8 @@ void Session::EmitFrames(const Eigen::Ref<const Eigen::MatrixXf>& up, const Eige
     frame.time_s = static_cast<double>(frame.index) / audio::kFrameRate;
     frame.upper_code = upper_code_;
     frame.lower_code = lower_code_;
-    reconstructor_.Reconstruct(up.col(f).data(), low.col(f).data(), pose_, &frame.positions, &frame.rotations);
+    reconstructor_.Reconstruct(up.col(f).data(), low.col(f).data(), pose_, &frame.positions, nullptr);
+    FinishFrame(frame);
   }
   // Forget feature frames no step will read again (amortised: only when many have accumulated).
   const int64_t needed_from = (cond_.step + c.music_lookahead_steps) * c.frames_per_step;
@@ -416,7 +418,7 @@ void Session::EmitWarpedFrames() {
     frame.time_s = static_cast<double>(frame.index) / audio::kFrameRate;
     for (int j = 0; j < 24; ++j) frame.positions[j] = pa[j] + frac * (pb[j] - pa[j]);
     reconstructor_.ProjectBoneLengths(frame.positions);
-    reconstructor_.JointRotations(frame.positions, &frame.rotations);
+    FinishFrame(frame);
     std::tie(frame.upper_code, frame.lower_code) = warp_.pose_codes[a - warp_.first_pose];
     warp_.starts.pop_front();
     ++warp_.next_output;
@@ -427,6 +429,15 @@ void Session::EmitWarpedFrames() {
       ++warp_.first_pose;
     }
   }
+}
+
+void Session::FinishFrame(PoseFrame& frame) {
+  if (sampling_.foot_lock) {
+    foot_lock_.Apply(foot_lock_state_, &frame.positions);
+  } else {
+    foot_lock_state_ = FootLockState();  // turned back on, it starts from the feet where they are
+  }
+  reconstructor_.JointRotations(frame.positions, &frame.rotations);
 }
 
 absl::Status Session::Step() {
@@ -460,6 +471,7 @@ absl::StatusOr<SessionSnapshot> Session::Snapshot() const {
   s.upper_decoder = upper_state_;
   s.lower_decoder = lower_state_;
   s.pose = pose_;
+  s.foot_lock = foot_lock_state_;
   s.warp = warp_;
   s.bar_frames = bar_frames_;
   s.period_steps = period_steps_;
@@ -511,6 +523,7 @@ absl::Status Session::Restore(const SessionSnapshot& s) {
   upper_state_ = s.upper_decoder;
   lower_state_ = s.lower_decoder;
   pose_ = s.pose;
+  foot_lock_state_ = s.foot_lock;
   warp_ = s.warp;
   style_reference_bpm_ = warp_.clock.options().reference_bpm;
   bar_frames_ = s.bar_frames;
@@ -550,6 +563,7 @@ void Session::Reset() {
   upper_state_.Clear();
   lower_state_.Clear();
   pose_ = PoseState();
+  foot_lock_state_ = FootLockState();
   warp_ = NewWarpState();
   output_.clear();
 }

@@ -57,6 +57,7 @@
 #include "engine/model/sequence_state.h"
 #include "engine/nn/sampling.h"
 #include "engine/runtime/model.h"
+#include "engine/vq/foot_lock.h"
 #include "engine/vq/pose_reconstructor.h"
 #include "engine/vq/vq_decoder.h"
 
@@ -113,6 +114,7 @@ struct SessionSnapshot {
   int upper_code = 0, lower_code = 0;
   VqDecoderState upper_decoder, lower_decoder;
   PoseState pose;
+  FootLockState foot_lock;
   WarpState warp;
   double bar_frames = 0.0;
   double period_steps = 0.0;
@@ -204,6 +206,8 @@ class Session {
   void EmitFrames(const Eigen::Ref<const Eigen::MatrixXf>& upper, const Eigen::Ref<const Eigen::MatrixXf>& lower);
   // Tempo-normalised models: emits every real frame whose warped poses are decoded.
   void EmitWarpedFrames();
+  // An emitted frame's last stage: the foot lock (if on) on its projected positions, then its rotations.
+  void FinishFrame(PoseFrame& frame);
   bool warped() const { return model_->tempo_reference_bpm() > 0.0; }
   // Adds the period lock's bias toward the code lock_lag(stream) steps ago to `logits` of `stream` (0 upper).
   void ApplyPeriodLock(int stream, absl::Span<float> logits);
@@ -244,6 +248,8 @@ class Session {
   VqDecoderState upper_state_, lower_state_;
   PoseReconstructor reconstructor_;
   PoseState pose_;
+  FootLock foot_lock_;
+  FootLockState foot_lock_state_;  // carried over emitted (real-time) frames
   WarpState warp_;
   double style_reference_bpm_ = 0.0;  // the current style's reference tempo (tempo-normalised models)
   double bar_frames_ = 0.0;           // bar clock period in warped frames (0 = no bar clock)

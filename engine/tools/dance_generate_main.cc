@@ -2,14 +2,15 @@
 //
 //   dance-generate --audio FILE --out DANCE.json [--model M (default models/default.dncw)] [--seed S] [--style NAME[:W][,NAME:W...]]
 //                  [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--period-lock B] [--chunk-samples N]
-//                  [--crouch-guard 0|1] [--bvh DANCE.bvh] [--quiet]
+//                  [--crouch-guard 0|1] [--foot-lock 0|1] [--bvh DANCE.bvh] [--quiet]
 //
 // The audio is pushed in chunks of N input frames (default 4096; the dance does not depend on N), stepping
 // whenever a step is ready, exactly as a live stream would. Frames past the end of the audio are dropped.
 // Prints one JSON summary line (frames, seconds of audio, wall time, x real time) unless --quiet.
 // --period-lock B: the period lock's weight (0 = off; default: the model's for the top style,
 // time_base.style_period_lock or period_lock); the dance file records the weight in effect. --crouch-guard 0 turns the crouch guard off (default on; for
-// measuring it, docs/model.md section 6).
+// measuring it, docs/model.md section 6). --foot-lock 0 turns the foot lock off (default on; docs/model.md
+// section 7): the dance as decoded, planted feet not held.
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -43,7 +44,7 @@ struct Flags {
 constexpr char kUsage[] =
     "usage: dance-generate --audio FILE --out DANCE.json [--model M] [--seed S] [--style NAME[:W],...]\n"
     "                      [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--period-lock B]\n"
-    "                      [--chunk-samples N] [--crouch-guard 0|1]\n"
+    "                      [--chunk-samples N] [--crouch-guard 0|1] [--foot-lock 0|1]\n"
     "                      [--bvh DANCE.bvh] [--quiet]\n";
 
 absl::Status ParseFlags(int argc, char** argv, Flags* f) {
@@ -82,6 +83,9 @@ absl::Status ParseFlags(int argc, char** argv, Flags* f) {
     } else if (arg == "--crouch-guard") {
       ok = v == "0" || v == "1";
       f->sampling.crouch_guard = v == "1";
+    } else if (arg == "--foot-lock") {
+      ok = v == "0" || v == "1";
+      f->sampling.foot_lock = v == "1";
     } else if (arg == "--chunk-samples") {
       ok = absl::SimpleAtoi(v, &f->chunk_samples) && f->chunk_samples >= 1;
     } else {
@@ -167,6 +171,7 @@ absl::Status Run(Flags flags) {
                 {"guidance", s.guidance()},
                 {"period_lock", s.period_lock()},
                 {"crouch_guard", flags.sampling.crouch_guard},
+                {"foot_lock", flags.sampling.foot_lock},
                 {"audio_file", flags.audio},
                 {"audio_duration_s", duration},
                 {"latency_ms", s.LatencyMs()},

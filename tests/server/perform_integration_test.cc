@@ -167,6 +167,61 @@ TEST(EngineBackend, AnUnsetPeriodLockKeepsFollowingTheStyle) {
   EXPECT_GT(differ, 0);
 }
 
+TEST(EngineBackend, RawFeetIsAStreamSettingThatControlsKeep) {
+  // The shipped model (its feet plant; the tiny model's random poses may never touch the floor). A stream
+  // opened with raw feet stays raw after a sampling Control (which carries no foot setting), and the foot
+  // lock, on by default, changes only the legs.
+  absl::StatusOr<std::unique_ptr<EngineBackend>> backend = LoadEngineBackend("models/default.dncw");
+  ASSERT_TRUE(backend.ok()) << backend.status() << " (run from the source root)";
+  const std::vector<float> audio = engine::testing::ClickAudio(16.0, 125.0);
+  const size_t half = audio.size() / 2;
+  auto run = [&](bool foot_lock, const SamplingConfig* control) {
+    StreamConfig config;
+    config.style = {{"rumba", 1.0f}};
+    config.seed = 2;
+    config.foot_lock = foot_lock;
+    absl::StatusOr<std::unique_ptr<EngineStream>> s = (*backend)->Open(config);
+    EXPECT_TRUE(s.ok()) << s.status();
+    EngineStream* stream = s->get();
+    auto drain = [&] {
+      while (stream->StepsReady() > 0) EXPECT_TRUE((*backend)->StepBatch(absl::MakeConstSpan(&stream, 1)).ok());
+    };
+    EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
+    drain();
+    if (control != nullptr) {
+      EXPECT_TRUE(stream->SetSampling(*control).ok());
+    }
+    EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
+    stream->EndOfAudio();
+    drain();
+    std::vector<FrameData> frames;
+    stream->PopFrames(&frames);
+    return frames;
+  };
+  SamplingConfig keep;  // temperature 1, top_k 0: as opened; the rest unset
+  const std::vector<FrameData> raw = run(false, nullptr), raw_control = run(false, &keep),
+                               locked = run(true, &keep);
+  ASSERT_EQ(raw.size(), raw_control.size());
+  ASSERT_EQ(raw.size(), locked.size());
+  ASSERT_GT(raw.size(), 400u);
+  int legs_differ_after_control = 0;
+  for (size_t i = 0; i < raw.size(); ++i) {
+    ASSERT_EQ(raw[i].positions, raw_control[i].positions) << "frame " << i;
+    ASSERT_EQ(raw[i].lower_code, locked[i].lower_code) << "frame " << i;
+    for (int j = 0; j < kNumJoints; ++j) {
+      const bool leg = j == 4 || j == 5 || j == 7 || j == 8 || j == 10 || j == 11;
+      for (int k = 0; k < 3; ++k) {
+        const float a = raw[i].positions[3 * j + k], b = locked[i].positions[3 * j + k];
+        if (!leg) {
+          ASSERT_EQ(a, b) << "frame " << i << " joint " << j;
+        }
+        if (leg && i >= raw.size() / 2 && std::abs(a - b) > 1e-3f) ++legs_differ_after_control;
+      }
+    }
+  }
+  EXPECT_GT(legs_differ_after_control, 50);
+}
+
 TEST(PerformIntegration, TwentyConcurrentSessionsAllComplete) {
   ServerHarness h;
   const std::vector<float> audio = TestSignal(2.0, 24000);

@@ -59,6 +59,10 @@ TEST(Convert, ValidHeaderIsAccepted) {
   EXPECT_EQ(ValidateHeader(h, Model(), {})->config.sampling.guidance, 3.0f);
   h.mutable_sampling()->set_top_p(0.9f);
   EXPECT_EQ(ValidateHeader(h, Model(), {})->config.sampling.top_p, 0.9f);
+  // The foot lock is on unless the header asks for raw feet.
+  EXPECT_TRUE(v->config.foot_lock);
+  h.set_raw_feet(true);
+  EXPECT_FALSE(ValidateHeader(h, Model(), {})->config.foot_lock);
 }
 
 TEST(Convert, BadHeadersNameTheField) {
@@ -122,6 +126,10 @@ TEST(Convert, JsonStartAndControl) {
   ASSERT_TRUE(h.ok());
   ASSERT_TRUE(h->sampling().has_period_lock());
   EXPECT_EQ(h->sampling().period_lock(), 0.0f);
+  EXPECT_FALSE(h->raw_feet());
+  h = HeaderFromJson(nlohmann::json::parse(R"({"type":"start","sample_rate":48000,"raw_feet":true})"));
+  ASSERT_TRUE(h.ok());
+  EXPECT_TRUE(h->raw_feet());
   EXPECT_FALSE(HeaderFromJson(nlohmann::json::parse(R"({"sample_rate":"fast"})")).ok());
   auto c = ControlFromJson(nlohmann::json::parse(R"({"type":"control","style":[{"name":"breaking","weight":2}]})"));
   ASSERT_TRUE(c.ok());

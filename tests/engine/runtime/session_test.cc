@@ -423,6 +423,76 @@ TEST(Session, CrouchGuardRuleLetsARealDipPassAndHoldsALongCrouch) {
   EXPECT_TRUE(active);
 }
 
+// The shipped model on 20 s of clicks, with the foot lock and without: the same codes and, above the
+// knees, the same joints; the legs bend to hold planted feet (low and slow as decoded), whose drift falls;
+// bone lengths canonical.
+TEST(Session, FootLockHoldsPlantedFeetAndTouchesOnlyTheLegs) {
+  absl::StatusOr<std::shared_ptr<const Model>> model = LoadModel("models/default.dncw");
+  ASSERT_TRUE(model.ok()) << model.status() << " (run from the source root)";
+  SessionOptions opt = Opts(5);
+  opt.style = {{"cha-cha", 1.0f}};
+  ASSERT_TRUE(opt.sampling.foot_lock) << "on by default";
+  auto on = MakeSession(*model, opt);
+  opt.sampling.foot_lock = false;
+  auto off = MakeSession(*model, opt);
+  const std::vector<float> audio = testing::ClickAudio(20.0, 125.0);
+  const std::vector<PoseFrame> a = RunStream(*on, audio, {4096});
+  const std::vector<PoseFrame> b = RunStream(*off, audio, {4096});
+  ASSERT_EQ(a.size(), b.size());
+  ASSERT_GT(a.size(), 500u);
+  constexpr int kLegs[] = {4, 5, 7, 8, 10, 11};  // knees, ankles, feet
+  const Skeleton& skel = (*model)->skeleton();
+  int legs_moved = 0;
+  double skate_on = 0.0, skate_off = 0.0;
+  int planted = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    ASSERT_EQ(a[i].upper_code, b[i].upper_code) << "frame " << i;
+    ASSERT_EQ(a[i].lower_code, b[i].lower_code) << "frame " << i;
+    for (int j = 0; j < kNumJoints; ++j) {
+      const bool leg = std::find(std::begin(kLegs), std::end(kLegs), j) != std::end(kLegs);
+      if (!leg) {
+        ASSERT_EQ(a[i].positions[j], b[i].positions[j]) << "frame " << i << " joint " << j;
+      }
+      if (leg && (a[i].positions[j] - b[i].positions[j]).norm() > 1e-3f) ++legs_moved;
+      if (j > 0) {
+        ASSERT_NEAR((a[i].positions[j] - a[i].positions[skel.parents[j]]).norm(), skel.bone_lengths[j], 1e-4f)
+            << "frame " << i << " joint " << j;
+      }
+    }
+    if (i == 0) continue;
+    for (int foot : {10, 11}) {  // a foot joint below 3 cm drifting slower than 0.3 m/s as decoded
+      const auto horizontal = [&](const std::vector<PoseFrame>& f) {
+        const Eigen::Vector3f d = f[i].positions[foot] - f[i - 1].positions[foot];
+        return std::hypot(d.x(), d.z()) * 30.0;
+      };
+      if (b[i].positions[foot].y() > kFootLockHeightFull || horizontal(b) > 0.3) continue;
+      skate_on += horizontal(a);
+      skate_off += horizontal(b);
+      ++planted;
+    }
+  }
+  EXPECT_GT(legs_moved, 100);
+  // The lock's state travels in snapshots: a session restored mid-song (a foot may be held right then)
+  // continues exactly as the uninterrupted one.
+  opt.sampling.foot_lock = true;
+  auto first = MakeSession(*model, opt);
+  const size_t half = audio.size() / 2;
+  ASSERT_TRUE(first->PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
+  DrainSteps(*first);
+  std::vector<PoseFrame> resumed;
+  first->PopFrames(&resumed);
+  absl::StatusOr<SessionSnapshot> snap = first->Snapshot();
+  ASSERT_TRUE(snap.ok());
+  auto second = MakeSession(*model, opt);
+  ASSERT_TRUE(second->Restore(*snap).ok());
+  const std::vector<PoseFrame> rest = RunStream(*second, std::vector<float>(audio.begin() + half, audio.end()), {4096});
+  resumed.insert(resumed.end(), rest.begin(), rest.end());
+  ExpectSameFrames(a, resumed);
+  ASSERT_GT(planted, 50);
+  EXPECT_LT(skate_on, 0.7 * skate_off) << "planted feet's drift, mean m/s: " << skate_on / planted << " with the lock, "
+                                       << skate_off / planted << " without";
+}
+
 TEST(Session, CrouchGuardStandsTheDancerUpAfterALongCrouch) {
   // Each code's held height is what the decoder gives after kCodeHeightSteps repeats from a fresh state.
   testing::TinyModelOptions o;
