@@ -435,7 +435,9 @@ void Session::FinishFrame(PoseFrame& frame) {
   if (sampling_.foot_lock) {
     foot_lock_.Apply(foot_lock_state_, &frame.positions);
   } else {
-    foot_lock_state_ = FootLockState();  // turned back on, it starts from the feet where they are
+    // Turned off mid-stream (Session::SetSampling; the server never does), a held foot returns to its
+    // decoded place at once; turned back on, the lock starts from the feet where they are.
+    foot_lock_state_ = FootLockState();
   }
   reconstructor_.JointRotations(frame.positions, &frame.rotations);
 }

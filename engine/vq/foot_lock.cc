@@ -50,18 +50,22 @@ void FootLock::Apply(FootLockState& state, std::array<Eigen::Vector3f, kNumJoint
     foot.previous = raw;
     foot.has_previous = true;
     foot.speed += kFootLockSpeedSmoothing * (moved.norm() * kFramesPerSecond - foot.speed);
-    const float w = ContactWeight(p[leg.foot].y(), foot.speed);
+    const Eigen::Vector3f hip = p[leg.hip];
+    const Eigen::Vector3f ankle = p[leg.ankle];
+    const float length = leg.thigh + leg.shin;
+    // A leg straightening under a held foot lets go of it gradually (the room to reach sideways vanishes
+    // in the last percent of the leg's length; cutting the correction there would jump the foot).
+    const Eigen::Vector3f held = ankle + Eigen::Vector3f(foot.correction.x(), 0.0f, foot.correction.y()) - hip;
+    const float w = ContactWeight(p[leg.foot].y(), foot.speed) *
+                    Ramp(held.norm() / length, kFootLockExtensionFull, kFootLockExtensionNone);
     foot.correction -= w * moved;
     foot.correction *= 1.0f - kFootLockRelease * (1.0f - w);
     const float n = foot.correction.norm();
     if (n > kFootLockMaxShift) foot.correction *= kFootLockMaxShift / n;
 
-    const Eigen::Vector3f hip = p[leg.hip];
-    const Eigen::Vector3f ankle = p[leg.ankle];
     Eigen::Vector3f shift(foot.correction.x(), 0.0f, foot.correction.y());
-    const float reach = kReach * (leg.thigh + leg.shin);
-    const float share = ReachableShare(ankle - hip, shift, reach);
-    if (share < 1.0f) {
+    const float share = ReachableShare(ankle - hip, shift, kReach * length);
+    if (share < 1.0f) {  // a backstop: the extension ramp lets go before this
       foot.correction *= share;
       shift *= share;
     }
@@ -70,20 +74,28 @@ void FootLock::Apply(FootLockState& state, std::array<Eigen::Vector3f, kNumJoint
     // Two-bone IK: the knee on the circle of points at `thigh` from the hip and `shin` from the target.
     const Eigen::Vector3f target = ankle + shift;
     const Eigen::Vector3f to_target = target - hip;
-    const float d = std::max(to_target.norm(), std::abs(leg.thigh - leg.shin) + 1e-4f);
-    const Eigen::Vector3f u = to_target / std::max(to_target.norm(), 1e-6f);
+    const float d = to_target.norm();
+    if (d < std::abs(leg.thigh - leg.shin) + 1e-3f) {  // folded tighter than the leg can: leave it as decoded
+      foot.correction.setZero();
+      continue;
+    }
+    const Eigen::Vector3f u = to_target / d;
     const float along = (leg.thigh * leg.thigh - leg.shin * leg.shin + d * d) / (2.0f * d);
     const float radius = std::sqrt(std::max(leg.thigh * leg.thigh - along * along, 0.0f));
-    // The bend's direction is the decoded knee's, off the decoded hip-ankle line, plus a centimetre of the
-    // body's forward (left-right axis x up), which only decides for a straight decoded leg.
+    // The bend's direction: the decoded knee's offset from the decoded hip-ankle line, its backward part
+    // dropped (knees do not bend backwards; a decoded knee a centimetre behind the line would otherwise
+    // flip the bend), plus kStraightLegBend of the body's forward (left-right axis x up), which decides
+    // for a straight decoded leg and keeps the direction continuous.
     const Eigen::Vector3f raw_axis = (ankle - hip).normalized();
     const Eigen::Vector3f knee_rel = p[leg.knee] - hip;
     const Eigen::Vector3f across = p[legs_[0].hip] - p[legs_[1].hip];
     const Eigen::Vector3f forward = across.cross(Eigen::Vector3f::UnitY()).normalized();
-    Eigen::Vector3f pole = knee_rel - knee_rel.dot(raw_axis) * raw_axis + kStraightLegBend * forward;
+    Eigen::Vector3f pole = knee_rel - knee_rel.dot(raw_axis) * raw_axis;
+    pole -= std::min(pole.dot(forward), 0.0f) * forward;
+    pole += kStraightLegBend * forward;
     pole -= pole.dot(u) * u;
     const float pole_norm = pole.norm();
-    pole = pole_norm > 1e-6f ? Eigen::Vector3f(pole / pole_norm) : forward;
+    pole = pole_norm > 1e-6f ? Eigen::Vector3f(pole / pole_norm) : Eigen::Vector3f(u.unitOrthogonal());
     p[leg.knee] = hip + along * u + radius * pole;
     p[leg.ankle] = target;
     p[leg.foot] += shift;

@@ -6,13 +6,16 @@
 //   1. the raw foot point r (mean of the ankle and the foot joint, horizontal) moved by d since the last
 //      frame; its speed s = |d| x 30 fps is smoothed, s' <- s' + kFootLockSpeedSmoothing (s - s');
 //   2. contact weight w = ramp(foot joint height; kFootLockHeightFull..kFootLockHeightNone)
-//                       x ramp(s'; kFootLockSpeedFull..kFootLockSpeedNone)     (1 planted .. 0 free);
+//                       x ramp(s'; kFootLockSpeedFull..kFootLockSpeedNone)     (1 planted .. 0 free)
+//                       x ramp(hip to held ankle / (thigh + shin); kFootLockExtension*) (a straightening
+//                         leg lets go);
 //   3. the foot's horizontal correction c cancels the planted share of the motion, c <- c - w d, and
 //      returns to zero while the foot is free, c <- c (1 - kFootLockRelease (1 - w)); |c| <=
 //      kFootLockMaxShift, and c shrinks until the leg can reach (hip to ankle <= 0.999 of thigh + shin);
 //   4. the ankle and the foot joint move by c; the knee is placed on the circle the thigh and shin allow,
-//      on the side of the decoded knee (its bend plane kept). Bone lengths stay exact; the hips, the
-//      pelvis and the upper body are untouched, so the root path and the music timing do not change.
+//      toward the decoded knee's bend (never backwards; forward for a straight leg). Bone lengths stay
+//      exact; the hips, the pelvis and the upper body are untouched, so the root path and the music timing
+//      do not change.
 // A foot that is high or moving fast is never held, and its correction fades within a few frames of swing,
 // where the foot's own motion hides it. Measured on the default model's dances (docs/training.md "Foot
 // lock"): foot skating and PFC fall toward the real dancers', jitter and FID change within noise.
@@ -43,6 +46,9 @@ inline constexpr float kFootLockSpeedNone = 1.0f;     // at or above: 0
 inline constexpr float kFootLockSpeedSmoothing = 0.5f;
 inline constexpr float kFootLockRelease = 0.15f;      // share of the correction dropped per free frame
 inline constexpr float kFootLockMaxShift = 0.15f;     // metres
+// Hip-to-held-ankle distance as a share of thigh + shin: at or below: extension weight 1; at or above: 0.
+inline constexpr float kFootLockExtensionFull = 0.99f;
+inline constexpr float kFootLockExtensionNone = 0.998f;
 
 struct FootLockState {
   struct Foot {
@@ -56,7 +62,7 @@ struct FootLockState {
 
 class FootLock {
  public:
-  // `skeleton` must outlive the lock (the Model owns it).
+  // Copies the leg bone lengths of `skeleton`.
   explicit FootLock(const Skeleton& skeleton);
 
   // One frame, in place: ankles, feet and knees of `positions` (30 fps frames, in order).

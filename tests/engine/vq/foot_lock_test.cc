@@ -105,10 +105,83 @@ TEST(FootLock, HoldsADriftingPlantedFootBentLeg) {
   ExpectDriftHeld(LeftLeg(skel, -0.05f, 0.25f, 0.01f));
 }
 
-TEST(FootLock, HoldsADriftingPlantedFootStraightLeg) {
-  // A straight decoded leg has no bend plane of its own: the knee bends forward.
+// One frame of the lock on decoded pose `raw` whose left foot is already held with a correction that
+// brings the ankle under the hip (at most kFootLockMaxShift away).
+Pose HoldUnderTheHip(const Skeleton& skel, const Pose& raw) {
+  const FootLock lock(skel);
+  FootLockState state;
+  FootLockState::Foot& foot = state.feet[0];
+  foot.correction = Eigen::Vector2f(raw[kLeftHip].x() - raw[kLeftAnkle].x(), raw[kLeftHip].z() - raw[kLeftAnkle].z());
+  EXPECT_LT(foot.correction.norm(), kFootLockMaxShift);
+  foot.previous = Eigen::Vector2f(0.5f * (raw[kLeftAnkle].x() + raw[kLeftFoot].x()),
+                                  0.5f * (raw[kLeftAnkle].z() + raw[kLeftFoot].z()));
+  foot.has_previous = true;
+  Pose out = raw;
+  lock.Apply(state, &out);
+  return out;
+}
+
+TEST(FootLock, AStraightDecodedLegBendsItsKneeForward) {
+  // Hip, knee and ankle in line, the ankle 0.15 rad behind the hip: a straight leg has no bend of its own,
+  // and the held ankle (toward under the hip) needs one: the knee bends forward (+Z).
   const Skeleton skel = LoadSkeleton();
-  ExpectDriftHeld(LeftLeg(skel, 0.15f, 0.15f, 0.01f));
+  Pose raw = Standing(skel, 0.0f);
+  const Eigen::Vector3f down(0.0f, -std::cos(0.15f), -std::sin(0.15f));
+  const Eigen::Vector3f knee = raw[kLeftHip] + skel.bone_lengths[kLeftKnee] * down;
+  const Eigen::Vector3f ankle = knee + skel.bone_lengths[kLeftAnkle] * down;
+  raw[kLeftFoot] += ankle - raw[kLeftAnkle];
+  raw[kLeftKnee] = knee;
+  raw[kLeftAnkle] = ankle;
+  const float lift = 0.01f - raw[kLeftFoot].y();
+  for (Eigen::Vector3f& v : raw) v.y() += lift;
+  const Pose out = HoldUnderTheHip(skel, raw);
+  ExpectCanonicalBones(skel, out, 0);
+  EXPECT_GT(Horizontal(out[kLeftAnkle], raw[kLeftAnkle]), 0.05f);  // held toward under the hip
+  EXPECT_GT(out[kLeftKnee].z(), out[kLeftHip].z() + 0.03f);
+}
+
+TEST(FootLock, NeverBendsAKneeBackwards) {
+  // The decoded knee behind its hip-ankle line (thigh turned back, shin less): the held leg still bends
+  // forward, not into a reversed knee.
+  const Skeleton skel = LoadSkeleton();
+  const Pose raw = LeftLeg(skel, 0.25f, 0.05f, 0.01f);
+  const Eigen::Vector3f axis = (raw[kLeftAnkle] - raw[kLeftHip]).normalized();
+  const Eigen::Vector3f knee = raw[kLeftKnee] - raw[kLeftHip];
+  ASSERT_LT((knee - knee.dot(axis) * axis).z(), -0.01f) << "the decoded knee is behind its line";
+  const Pose out = HoldUnderTheHip(skel, raw);
+  ExpectCanonicalBones(skel, out, 0);
+  EXPECT_GT(Horizontal(out[kLeftAnkle], raw[kLeftAnkle]), 0.05f);
+  const Eigen::Vector3f held_axis = (out[kLeftAnkle] - out[kLeftHip]).normalized();
+  const Eigen::Vector3f held_knee = out[kLeftKnee] - out[kLeftHip];
+  EXPECT_GT((held_knee - held_knee.dot(held_axis) * held_axis).z(), 0.01f) << "the knee in front of its line";
+}
+
+TEST(FootLock, LetsGoGraduallyAsTheLegStraightens) {
+  // A foot held ~10 cm from where it was decoded; then the decoded leg straightens over half a second
+  // (the hip rising over the planted foot). The correction is let go a little every frame, never cut.
+  const Skeleton skel = LoadSkeleton();
+  const FootLock lock(skel);
+  FootLockState state;
+  const Pose bent = LeftLeg(skel, -0.05f, 0.25f, 0.01f);
+  for (int t = 0; t < 30; ++t) {
+    Pose p = Translated(bent, Eigen::Vector3f(0.0f, 0.0f, -0.1f / 30.0f * static_cast<float>(t)));
+    lock.Apply(state, &p);
+  }
+  ASSERT_GT(state.feet[0].correction.norm(), 0.08f);
+  const Eigen::Vector3f at = Eigen::Vector3f(0.0f, 0.0f, -0.1f / 30.0f * 29.0f);
+  Pose previous;
+  float worst = 0.0f;
+  for (int t = 0; t <= 30; ++t) {
+    const float k = 1.0f - static_cast<float>(t) / 15.0f;  // straight from frame 15 on
+    const Pose raw = Translated(LeftLeg(skel, -0.05f * std::max(k, 0.0f), 0.25f * std::max(k, 0.0f), 0.01f), at);
+    Pose out = raw;
+    lock.Apply(state, &out);
+    ExpectCanonicalBones(skel, out, t);
+    if (t > 0) worst = std::max(worst, (out[kLeftFoot] - previous[kLeftFoot]).norm());
+    previous = out;
+  }
+  EXPECT_LT(worst, 0.02f) << "metres per frame";
+  EXPECT_LT(state.feet[0].correction.norm(), 0.01f);
 }
 
 TEST(FootLock, LeavesAFastOrLiftedFootAlone) {
