@@ -53,19 +53,24 @@ void FootLock::Apply(FootLockState& state, std::array<Eigen::Vector3f, kNumJoint
     const Eigen::Vector3f hip = p[leg.hip];
     const Eigen::Vector3f ankle = p[leg.ankle];
     const float length = leg.thigh + leg.shin;
-    // A leg straightening under a held foot lets go of it gradually (the room to reach sideways vanishes
-    // in the last percent of the leg's length; cutting the correction there would jump the foot).
-    const Eigen::Vector3f held = ankle + Eigen::Vector3f(foot.correction.x(), 0.0f, foot.correction.y()) - hip;
-    const float w = ContactWeight(p[leg.foot].y(), foot.speed) *
-                    Ramp(held.norm() / length, kFootLockExtensionFull, kFootLockExtensionNone);
+    // A hold that would stretch the leg toward straight lets go gradually (the room to reach sideways
+    // vanishes in the last percent of the leg's length); a hold that bends it (a straight decoded leg
+    // whose foot stays behind) is not limited.
+    const float decoded = (ankle - hip).norm();
+    const float held = (ankle + Eigen::Vector3f(foot.correction.x(), 0.0f, foot.correction.y()) - hip).norm();
+    const float extension =
+        held <= decoded ? 1.0f : Ramp(held / length, kFootLockExtensionFull, kFootLockExtensionNone);
+    const float w = ContactWeight(p[leg.foot].y(), foot.speed) * extension;
     foot.correction -= w * moved;
     foot.correction *= 1.0f - kFootLockRelease * (1.0f - w);
     const float n = foot.correction.norm();
     if (n > kFootLockMaxShift) foot.correction *= kFootLockMaxShift / n;
 
     Eigen::Vector3f shift(foot.correction.x(), 0.0f, foot.correction.y());
-    const float share = ReachableShare(ankle - hip, shift, kReach * length);
-    if (share < 1.0f) {  // a backstop: the extension ramp lets go before this
+    // At most as long as the decoded leg or 0.999 of the leg, whichever is longer: a decoded leg that is
+    // itself straight keeps the holds that do not lengthen it, so its correction shrinks smoothly.
+    const float share = ReachableShare(ankle - hip, shift, std::max(kReach * length, decoded));
+    if (share < 1.0f) {
       foot.correction *= share;
       shift *= share;
     }

@@ -7,11 +7,13 @@
 //      frame; its speed s = |d| x 30 fps is smoothed, s' <- s' + kFootLockSpeedSmoothing (s - s');
 //   2. contact weight w = ramp(foot joint height; kFootLockHeightFull..kFootLockHeightNone)
 //                       x ramp(s'; kFootLockSpeedFull..kFootLockSpeedNone)     (1 planted .. 0 free)
-//                       x ramp(hip to held ankle / (thigh + shin); kFootLockExtension*) (a straightening
-//                         leg lets go);
+//                       x ramp(hip to held ankle / (thigh + shin); kFootLockExtension*), only when the
+//                         hold lengthens the leg (a straightening leg lets go; a straight leg whose
+//                         foot stays behind is held);
 //   3. the foot's horizontal correction c cancels the planted share of the motion, c <- c - w d, and
 //      returns to zero while the foot is free, c <- c (1 - kFootLockRelease (1 - w)); |c| <=
-//      kFootLockMaxShift, and c shrinks until the leg can reach (hip to ankle <= 0.999 of thigh + shin);
+//      kFootLockMaxShift, and c shrinks until the leg can reach (hip to ankle <= 0.999 of thigh + shin,
+//      or the decoded leg's own length if longer);
 //   4. the ankle and the foot joint move by c; the knee is placed on the circle the thigh and shin allow,
 //      toward the decoded knee's bend (never backwards; forward for a straight leg). Bone lengths stay
 //      exact; the hips, the pelvis and the upper body are untouched, so the root path and the music timing

@@ -47,6 +47,22 @@ Pose LeftLeg(const Skeleton& skel, float thigh, float shin, float floor) {
   return p;
 }
 
+// The same with absolute bone directions: the thigh and the shin `thigh` and `shin` radians from hanging
+// straight down (positive: lower end back, -Z); equal angles put hip, knee and ankle exactly in line.
+Pose LeftLegInLine(const Skeleton& skel, float thigh, float shin, float floor) {
+  Pose p = Standing(skel, 0.0f);
+  const Eigen::Vector3f knee =
+      p[kLeftHip] + skel.bone_lengths[kLeftKnee] * Eigen::Vector3f(0.0f, -std::cos(thigh), -std::sin(thigh));
+  const Eigen::Vector3f ankle =
+      knee + skel.bone_lengths[kLeftAnkle] * Eigen::Vector3f(0.0f, -std::cos(shin), -std::sin(shin));
+  p[kLeftFoot] += ankle - p[kLeftAnkle];
+  p[kLeftKnee] = knee;
+  p[kLeftAnkle] = ankle;
+  const float left = p[kLeftFoot].y();
+  for (Eigen::Vector3f& v : p) v.y() += floor - left;
+  return p;
+}
+
 Pose Translated(Pose p, const Eigen::Vector3f& d) {
   for (Eigen::Vector3f& v : p) v += d;
   return p;
@@ -157,31 +173,50 @@ TEST(FootLock, NeverBendsAKneeBackwards) {
 }
 
 TEST(FootLock, LetsGoGraduallyAsTheLegStraightens) {
-  // A foot held ~10 cm from where it was decoded; then the decoded leg straightens over half a second
-  // (the hip rising over the planted foot). The correction is let go a little every frame, never cut.
+  // The body drifts forward over a bent leg's planted foot (held ~10 cm behind where it was decoded); then
+  // the decoded leg straightens over half a second until hip, knee and ankle are exactly in line, so the
+  // held foot could not be reached at the end. The correction shrinks a little every frame, never cut at once.
   const Skeleton skel = LoadSkeleton();
   const FootLock lock(skel);
   FootLockState state;
-  const Pose bent = LeftLeg(skel, -0.05f, 0.25f, 0.01f);
+  const Pose bent = LeftLegInLine(skel, -0.3f, 0.5f, 0.01f);
   for (int t = 0; t < 30; ++t) {
-    Pose p = Translated(bent, Eigen::Vector3f(0.0f, 0.0f, -0.1f / 30.0f * static_cast<float>(t)));
+    Pose p = Translated(bent, Eigen::Vector3f(0.0f, 0.0f, 0.1f / 30.0f * static_cast<float>(t)));
     lock.Apply(state, &p);
   }
   ASSERT_GT(state.feet[0].correction.norm(), 0.08f);
-  const Eigen::Vector3f at = Eigen::Vector3f(0.0f, 0.0f, -0.1f / 30.0f * 29.0f);
+  const Eigen::Vector3f at = Eigen::Vector3f(0.0f, 0.0f, 0.1f / 30.0f * 29.0f);
   Pose previous;
   float worst = 0.0f;
   for (int t = 0; t <= 30; ++t) {
-    const float k = 1.0f - static_cast<float>(t) / 15.0f;  // straight from frame 15 on
-    const Pose raw = Translated(LeftLeg(skel, -0.05f * std::max(k, 0.0f), 0.25f * std::max(k, 0.0f), 0.01f), at);
+    const float k = std::max(1.0f - static_cast<float>(t) / 15.0f, 0.0f);  // in line from frame 15 on
+    const Pose raw = Translated(LeftLegInLine(skel, 0.1f - 0.4f * k, 0.1f + 0.4f * k, 0.01f), at);
     Pose out = raw;
     lock.Apply(state, &out);
     ExpectCanonicalBones(skel, out, t);
     if (t > 0) worst = std::max(worst, (out[kLeftFoot] - previous[kLeftFoot]).norm());
     previous = out;
   }
-  EXPECT_LT(worst, 0.02f) << "metres per frame";
+  EXPECT_LT(worst, 0.02f) << "metres per frame";  // the release rate: kFootLockRelease x ~10 cm
   EXPECT_LT(state.feet[0].correction.norm(), 0.01f);
+}
+
+TEST(FootLock, HoldsTheFootBehindAStraightLeg) {
+  // Hip, knee and ankle in line, the body drifting back over a planted foot behind it: holding it shortens the
+  // hip-ankle distance (the knee bends), so a straight leg is held like a bent one.
+  const Skeleton skel = LoadSkeleton();
+  const FootLock lock(skel);
+  FootLockState state;
+  const Pose base = LeftLegInLine(skel, 0.1f, 0.1f, 0.01f);
+  Eigen::Vector3f planted;
+  for (int t = 0; t < 20; ++t) {
+    const Pose raw = Translated(base, Eigen::Vector3f(0.0f, 0.0f, -0.1f / 30.0f * static_cast<float>(t)));
+    Pose out = raw;
+    lock.Apply(state, &out);
+    if (t == 0) planted = out[kLeftFoot];
+    ExpectCanonicalBones(skel, out, t);
+    EXPECT_LT(Horizontal(out[kLeftFoot], planted), 1e-3f) << "frame " << t;
+  }
 }
 
 TEST(FootLock, LeavesAFastOrLiftedFootAlone) {
