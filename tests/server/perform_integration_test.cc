@@ -1,5 +1,6 @@
 // Integration: a real dance-server (real engine, tiny model) on port 0, real gRPC channels.
 #include <atomic>
+#include <functional>
 #include <map>
 #include <string>
 #include <thread>
@@ -13,6 +14,30 @@
 
 namespace dance::server::testing {
 namespace {
+
+// Opens a stream on `backend`, pushes the first half of `audio` and steps, calls `between` on the stream
+// (the Controls under test), pushes the rest, ends the audio, and returns every frame.
+std::vector<FrameData> RunInHalves(const EngineBackend& backend, const StreamConfig& config,
+                                   const std::vector<float>& audio,
+                                   const std::function<void(EngineStream&)>& between) {
+  absl::StatusOr<std::unique_ptr<EngineStream>> s = backend.Open(config);
+  EXPECT_TRUE(s.ok()) << s.status();
+  if (!s.ok()) return {};
+  EngineStream* stream = s->get();
+  auto drain = [&] {
+    while (stream->StepsReady() > 0) EXPECT_TRUE(backend.StepBatch(absl::MakeConstSpan(&stream, 1)).ok());
+  };
+  const size_t half = audio.size() / 2;
+  EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
+  drain();
+  between(*stream);
+  EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
+  stream->EndOfAudio();
+  drain();
+  std::vector<FrameData> frames;
+  stream->PopFrames(&frames);
+  return frames;
+}
 
 TEST(PerformIntegration, FullSessionProducesEveryFrameInOrder) {
   ServerHarness h;
@@ -66,25 +91,12 @@ TEST(EngineBackend, ControlKeepsTheGuidanceTopPAndLockItLeavesUnset) {
   config.sampling.guidance = 2.5f;
   config.sampling.top_p = 0.8f;
   const std::vector<float> audio = TestSignal(6.0, 24000);
-  const size_t half = audio.size() / 2;
   auto run = [&](const SamplingConfig* control) {
-    absl::StatusOr<std::unique_ptr<EngineStream>> s = (*backend)->Open(config);
-    EXPECT_TRUE(s.ok()) << s.status();
-    EngineStream* stream = s->get();
-    auto drain = [&] {
-      while (stream->StepsReady() > 0) EXPECT_TRUE((*backend)->StepBatch(absl::MakeConstSpan(&stream, 1)).ok());
-    };
-    EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
-    drain();
-    if (control != nullptr) {
-      EXPECT_TRUE(stream->SetSampling(*control).ok());
-    }
-    EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
-    stream->EndOfAudio();
-    drain();
-    std::vector<FrameData> frames;
-    stream->PopFrames(&frames);
-    return frames;
+    return RunInHalves(**backend, config, audio, [&](EngineStream& stream) {
+      if (control != nullptr) {
+        EXPECT_TRUE(stream.SetSampling(*control).ok());
+      }
+    });
   };
   SamplingConfig keep;  // temperature 1, top_k 0: as opened; the rest unset
   SamplingConfig guidance_off = keep;
@@ -130,26 +142,13 @@ TEST(EngineBackend, AnUnsetPeriodLockKeepsFollowingTheStyle) {
   config.style = {{"tango", 1.0f}};
   config.seed = 3;
   const std::vector<float> audio = engine::testing::ClickAudio(8.0, 110.0);
-  const size_t half = audio.size() / 2;
   auto run = [&](const SamplingConfig* control) {
-    absl::StatusOr<std::unique_ptr<EngineStream>> s = (*backend)->Open(config);
-    EXPECT_TRUE(s.ok()) << s.status();
-    EngineStream* stream = s->get();
-    auto drain = [&] {
-      while (stream->StepsReady() > 0) EXPECT_TRUE((*backend)->StepBatch(absl::MakeConstSpan(&stream, 1)).ok());
-    };
-    EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
-    drain();
-    if (control != nullptr) {
-      EXPECT_TRUE(stream->SetSampling(*control).ok());
-    }
-    EXPECT_TRUE(stream->SetStyle({{"waltz", 1.0f}}).ok());
-    EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
-    stream->EndOfAudio();
-    drain();
-    std::vector<FrameData> frames;
-    stream->PopFrames(&frames);
-    return frames;
+    return RunInHalves(**backend, config, audio, [&](EngineStream& stream) {
+      if (control != nullptr) {
+        EXPECT_TRUE(stream.SetSampling(*control).ok());
+      }
+      EXPECT_TRUE(stream.SetStyle({{"waltz", 1.0f}}).ok());
+    });
   };
   SamplingConfig keep;  // temperature 1, top_k 0: as opened; the rest unset
   SamplingConfig pinned = keep;
@@ -174,29 +173,16 @@ TEST(EngineBackend, RawFeetIsAStreamSettingThatControlsKeep) {
   absl::StatusOr<std::unique_ptr<EngineBackend>> backend = LoadEngineBackend("models/default.dncw");
   ASSERT_TRUE(backend.ok()) << backend.status() << " (run from the source root)";
   const std::vector<float> audio = engine::testing::ClickAudio(16.0, 125.0);
-  const size_t half = audio.size() / 2;
   auto run = [&](bool foot_lock, const SamplingConfig* control) {
     StreamConfig config;
     config.style = {{"rumba", 1.0f}};
     config.seed = 2;
     config.foot_lock = foot_lock;
-    absl::StatusOr<std::unique_ptr<EngineStream>> s = (*backend)->Open(config);
-    EXPECT_TRUE(s.ok()) << s.status();
-    EngineStream* stream = s->get();
-    auto drain = [&] {
-      while (stream->StepsReady() > 0) EXPECT_TRUE((*backend)->StepBatch(absl::MakeConstSpan(&stream, 1)).ok());
-    };
-    EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
-    drain();
-    if (control != nullptr) {
-      EXPECT_TRUE(stream->SetSampling(*control).ok());
-    }
-    EXPECT_TRUE(stream->PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
-    stream->EndOfAudio();
-    drain();
-    std::vector<FrameData> frames;
-    stream->PopFrames(&frames);
-    return frames;
+    return RunInHalves(**backend, config, audio, [&](EngineStream& stream) {
+      if (control != nullptr) {
+        EXPECT_TRUE(stream.SetSampling(*control).ok());
+      }
+    });
   };
   SamplingConfig keep;  // temperature 1, top_k 0: as opened; the rest unset
   const std::vector<FrameData> raw = run(false, nullptr), raw_control = run(false, &keep),

@@ -31,14 +31,10 @@ Pose Standing(const Skeleton& skel, float floor) {
   return p;
 }
 
-// A standing pose with its left leg bent: the thigh turned `thigh` radians and the shin `shin` radians
-// about the X axis from hanging straight (positive turns swing the lower end back, to -Z; the body faces
-// +Z), the foot carried with the ankle; lifted so its left foot joint is `floor` metres up.
-Pose LeftLeg(const Skeleton& skel, float thigh, float shin, float floor) {
+// The standing pose with its left knee and ankle at `knee` and `ankle` (the foot carried with the ankle),
+// lifted so its left foot joint is `floor` metres up.
+Pose WithLeftLeg(const Skeleton& skel, const Eigen::Vector3f& knee, const Eigen::Vector3f& ankle, float floor) {
   Pose p = Standing(skel, 0.0f);
-  const Eigen::AngleAxisf rt(thigh, Eigen::Vector3f::UnitX()), rs(shin, Eigen::Vector3f::UnitX());
-  const Eigen::Vector3f knee = p[kLeftHip] + rt * (p[kLeftKnee] - p[kLeftHip]);
-  const Eigen::Vector3f ankle = knee + rs * (p[kLeftAnkle] - p[kLeftKnee]);
   p[kLeftFoot] += ankle - p[kLeftAnkle];
   p[kLeftKnee] = knee;
   p[kLeftAnkle] = ankle;
@@ -47,20 +43,26 @@ Pose LeftLeg(const Skeleton& skel, float thigh, float shin, float floor) {
   return p;
 }
 
+// A standing pose with its left leg bent: the thigh turned `thigh` radians and the shin `shin` radians
+// about the X axis from their rest directions (positive turns swing the lower end back, to -Z; the body
+// faces +Z).
+Pose LeftLeg(const Skeleton& skel, float thigh, float shin, float floor) {
+  const Pose rest = Standing(skel, 0.0f);
+  const Eigen::AngleAxisf rt(thigh, Eigen::Vector3f::UnitX()), rs(shin, Eigen::Vector3f::UnitX());
+  const Eigen::Vector3f knee = rest[kLeftHip] + rt * (rest[kLeftKnee] - rest[kLeftHip]);
+  const Eigen::Vector3f ankle = knee + rs * (rest[kLeftAnkle] - rest[kLeftKnee]);
+  return WithLeftLeg(skel, knee, ankle, floor);
+}
+
 // The same with absolute bone directions: the thigh and the shin `thigh` and `shin` radians from hanging
 // straight down (positive: lower end back, -Z); equal angles put hip, knee and ankle exactly in line.
 Pose LeftLegInLine(const Skeleton& skel, float thigh, float shin, float floor) {
-  Pose p = Standing(skel, 0.0f);
+  const Pose rest = Standing(skel, 0.0f);
   const Eigen::Vector3f knee =
-      p[kLeftHip] + skel.bone_lengths[kLeftKnee] * Eigen::Vector3f(0.0f, -std::cos(thigh), -std::sin(thigh));
+      rest[kLeftHip] + skel.bone_lengths[kLeftKnee] * Eigen::Vector3f(0.0f, -std::cos(thigh), -std::sin(thigh));
   const Eigen::Vector3f ankle =
       knee + skel.bone_lengths[kLeftAnkle] * Eigen::Vector3f(0.0f, -std::cos(shin), -std::sin(shin));
-  p[kLeftFoot] += ankle - p[kLeftAnkle];
-  p[kLeftKnee] = knee;
-  p[kLeftAnkle] = ankle;
-  const float left = p[kLeftFoot].y();
-  for (Eigen::Vector3f& v : p) v.y() += floor - left;
-  return p;
+  return WithLeftLeg(skel, knee, ankle, floor);
 }
 
 Pose Translated(Pose p, const Eigen::Vector3f& d) {
@@ -141,15 +143,7 @@ TEST(FootLock, AStraightDecodedLegBendsItsKneeForward) {
   // Hip, knee and ankle in line, the ankle 0.15 rad behind the hip: a straight leg has no bend of its own,
   // and the held ankle (toward under the hip) needs one: the knee bends forward (+Z).
   const Skeleton skel = LoadSkeleton();
-  Pose raw = Standing(skel, 0.0f);
-  const Eigen::Vector3f down(0.0f, -std::cos(0.15f), -std::sin(0.15f));
-  const Eigen::Vector3f knee = raw[kLeftHip] + skel.bone_lengths[kLeftKnee] * down;
-  const Eigen::Vector3f ankle = knee + skel.bone_lengths[kLeftAnkle] * down;
-  raw[kLeftFoot] += ankle - raw[kLeftAnkle];
-  raw[kLeftKnee] = knee;
-  raw[kLeftAnkle] = ankle;
-  const float lift = 0.01f - raw[kLeftFoot].y();
-  for (Eigen::Vector3f& v : raw) v.y() += lift;
+  const Pose raw = LeftLegInLine(skel, 0.15f, 0.15f, 0.01f);
   const Pose out = HoldUnderTheHip(skel, raw);
   ExpectCanonicalBones(skel, out, 0);
   EXPECT_GT(Horizontal(out[kLeftAnkle], raw[kLeftAnkle]), 0.05f);  // held toward under the hip
