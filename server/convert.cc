@@ -44,10 +44,11 @@ absl::StatusOr<SamplingConfig> SamplingFromProto(const dance::v1::Sampling& s) {
   c.top_p = s.top_p() == 0.0f ? -1.0f : s.top_p();  // 0: the model's default (negative)
   c.guidance = s.guidance() == 0.0f ? -1.0f : s.guidance();  // 0: the model's default (negative)
   if (s.has_period_lock()) {
-    if (!(s.period_lock() >= 0.0f && s.period_lock() <= 100.0f)) {
-      return absl::InvalidArgumentError("sampling.period_lock must be in [0, 100]");
+    const float lock = s.period_lock();
+    if (!(lock == -1.0f || (lock >= 0.0f && lock <= 100.0f))) {
+      return absl::InvalidArgumentError("sampling.period_lock must be in [0, 100], or -1 for the model's default");
     }
-    c.period_lock = s.period_lock();
+    c.period_lock = lock;
   }
   return c;
 }

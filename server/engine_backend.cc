@@ -17,7 +17,7 @@ engine::SamplingOptions ToEngine(const SamplingConfig& s) {
   o.top_k = s.top_k;
   o.top_p = s.top_p;
   o.guidance = s.guidance;
-  o.period_lock = s.period_lock;
+  o.period_lock = s.period_lock.value_or(-1.0f);  // unset in a StreamHeader: the model's default
   return o;
 }
 
@@ -57,9 +57,10 @@ class EngineSessionStream final : public EngineStream {
     // A Control whose sampling has no period_lock, guidance 0 or top_p 0 keeps the setting in effect ("unset
     // fields keep their value"): an explicit value stays, and so does "the model's default", which for the
     // period lock depends on the style (Model::StylePeriodLock) and must follow later style changes. In a
-    // StreamHeader the same mean the model's defaults.
+    // StreamHeader the same mean the model's defaults. A negative period_lock asks for the model's
+    // style-following default back (engine: negative = Model::StylePeriodLock of the top style).
     const engine::SamplingOptions& now = session_->sampling();
-    if (o.period_lock < 0.0f) o.period_lock = now.period_lock;
+    if (!sampling.period_lock.has_value()) o.period_lock = now.period_lock;
     if (o.guidance < 0.0f) o.guidance = now.guidance;
     if (o.top_p < 0.0f) o.top_p = now.top_p;
     o.foot_lock = now.foot_lock;  // a stream setting (StreamHeader.raw_feet), not the Control's

@@ -19,6 +19,7 @@
 #include <cstdint>
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -36,7 +37,9 @@ struct SamplingConfig {
   int top_k = 0;             // 0 = off
   float top_p = -1.0f;       // 1 = off, negative = the model's default
   float guidance = -1.0f;    // 1 = off, negative = the model's default
-  float period_lock = -1.0f; // 0 = off, negative = the model's default
+  // 0 = off, negative = the model's default for the top style (follows style changes); unset = the model's
+  // default in a StreamHeader, the setting in effect in a Control.
+  std::optional<float> period_lock;
 };
 
 using StyleMix = std::vector<std::pair<std::string, float>>;  // (style name, weight >= 0)

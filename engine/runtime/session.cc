@@ -112,13 +112,25 @@ absl::Status Session::ApplyStyle(const std::vector<std::pair<std::string, float>
 }
 
 int Session::TopStyleRow(const std::vector<std::pair<std::string, float>>& style) const {
-  int top = model_->config().n_styles;  // "none" (also an empty mix)
-  float best = -1.0f;
+  // A style named more than once counts with its summed weight (as in the style vector); rows in order of
+  // first appearance, so the first of equals wins.
+  std::vector<std::pair<int, double>> totals;
   for (const auto& [name, weight] : style) {
     const absl::StatusOr<int> row = model_->StyleIndex(name);
-    if (row.ok() && weight > best) {
-      best = weight;
-      top = *row;
+    if (!row.ok()) continue;
+    auto it = std::find_if(totals.begin(), totals.end(), [&](const auto& t) { return t.first == *row; });
+    if (it == totals.end()) {
+      totals.emplace_back(*row, weight);
+    } else {
+      it->second += weight;
+    }
+  }
+  int top = model_->config().n_styles;  // "none" (also an empty mix)
+  double best = -1.0;
+  for (const auto& [row, total] : totals) {
+    if (total > best) {
+      best = total;
+      top = row;
     }
   }
   return top;

@@ -192,8 +192,9 @@ class Session {
   // Guidance needs the unconditional lane only when the style is not "none" (with style "none" both lanes
   // are the same computation and lu + w (lc - lu) = lc).
   bool uses_guidance() const { return guidance() != 1.0f && !style_is_none_; }
-  // The row of the largest-weight entry of a (validated) style mix, the first of equals ("none" for an empty
-  // mix); ApplyStyle's choice for the metre, dance period and period lock.
+  // The row of the largest-weight style of a (validated) style mix, a style named twice counting with its
+  // summed weight, the first of equals ("none" for an empty mix); ApplyStyle's choice for the metre, dance
+  // period and period lock.
   int TopStyleRow(const std::vector<std::pair<std::string, float>>& style) const;
   // Whether every entry of a (validated) style mix with a weight is "none" (an empty mix is "none").
   bool StyleIsNone(const std::vector<std::pair<std::string, float>>& style) const;

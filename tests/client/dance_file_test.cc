@@ -3,6 +3,7 @@
 #include <random>
 
 #include "absl/strings/match.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "client/dance_file.h"
 #include "gtest/gtest.h"
@@ -57,7 +58,7 @@ dance::v1::SessionInfo Info() {
   info.set_model_id("m");
   const int parents[24] = {-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21};
   for (int j = 0; j < 24; ++j) {
-    info.mutable_skeleton()->add_joint_names("j" + std::to_string(j));
+    info.mutable_skeleton()->add_joint_names(absl::StrCat("j", j));
     info.mutable_skeleton()->add_parents(parents[j]);
     for (int k = 0; k < 3; ++k) info.mutable_skeleton()->add_rest_offsets(j == 0 ? 0.0f : 0.1f);
   }

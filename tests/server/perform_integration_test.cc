@@ -124,7 +124,8 @@ TEST(EngineBackend, AnUnsetPeriodLockKeepsFollowingTheStyle) {
   // A model whose waltz is unlocked (time_base.style_period_lock {"waltz": 0}) and whose other styles lock
   // at 6. A Control's sampling without period_lock keeps "the model's default", so a later switch from
   // tango to waltz unlocks the dance exactly as with no sampling Control; pinning the weight in effect
-  // (6, tango's) would keep the waltz locked, which the last comparison shows is a different dance.
+  // (6, tango's) would keep the waltz locked, which the comparisons show is a different dance; and a
+  // Control with period_lock -1 takes a stream opened with the pin back to the default.
   engine::testing::TinyModelOptions o;
   o.tempo_reference_bpm = 105.0;
   o.style_reference_bpm = {{"waltz", 90.0}, {"tango", 120.0}};
@@ -142,8 +143,8 @@ TEST(EngineBackend, AnUnsetPeriodLockKeepsFollowingTheStyle) {
   config.style = {{"tango", 1.0f}};
   config.seed = 3;
   const std::vector<float> audio = engine::testing::ClickAudio(8.0, 110.0);
-  auto run = [&](const SamplingConfig* control) {
-    return RunInHalves(**backend, config, audio, [&](EngineStream& stream) {
+  auto run = [&](const StreamConfig& opened, const SamplingConfig* control) {
+    return RunInHalves(**backend, opened, audio, [&](EngineStream& stream) {
       if (control != nullptr) {
         EXPECT_TRUE(stream.SetSampling(*control).ok());
       }
@@ -153,17 +154,30 @@ TEST(EngineBackend, AnUnsetPeriodLockKeepsFollowingTheStyle) {
   SamplingConfig keep;  // temperature 1, top_k 0: as opened; the rest unset
   SamplingConfig pinned = keep;
   pinned.period_lock = 6.0f;
-  const std::vector<FrameData> base = run(nullptr), kept = run(&keep), locked = run(&pinned);
+  SamplingConfig back_to_default = keep;
+  back_to_default.period_lock = -1.0f;  // the proto's -1: the model's style-following default again
+  StreamConfig opened_pinned = config;  // tango's default is 6 too, so the first halves are the same dance
+  opened_pinned.sampling = pinned;
+  const std::vector<FrameData> base = run(config, nullptr), kept = run(config, &keep),
+                               locked = run(config, &pinned), unpinned = run(opened_pinned, &back_to_default),
+                               still_pinned = run(opened_pinned, &keep);
   ASSERT_EQ(base.size(), kept.size());
   ASSERT_EQ(base.size(), locked.size());
+  ASSERT_EQ(base.size(), unpinned.size());
+  ASSERT_EQ(base.size(), still_pinned.size());
   ASSERT_GT(base.size(), 200u);
-  int differ = 0;
+  int differ = 0, differ_pinned = 0;
   for (size_t i = 0; i < base.size(); ++i) {
     ASSERT_EQ(base[i].upper_code, kept[i].upper_code) << "frame " << i;
     ASSERT_EQ(base[i].lower_code, kept[i].lower_code) << "frame " << i;
+    ASSERT_EQ(base[i].upper_code, unpinned[i].upper_code) << "frame " << i;
+    ASSERT_EQ(base[i].lower_code, unpinned[i].lower_code) << "frame " << i;
     differ += base[i].upper_code != locked[i].upper_code || base[i].lower_code != locked[i].lower_code;
+    ASSERT_EQ(locked[i].upper_code, still_pinned[i].upper_code) << "frame " << i;
+    differ_pinned += base[i].upper_code != still_pinned[i].upper_code;
   }
   EXPECT_GT(differ, 0);
+  EXPECT_GT(differ_pinned, 0);  // opened pinned, a Control without period_lock keeps the pin
 }
 
 TEST(EngineBackend, RawFeetIsAStreamSettingThatControlsKeep) {

@@ -43,7 +43,7 @@ TEST(Convert, ValidHeaderIsAccepted) {
   EXPECT_EQ(v->config.sample_rate_hz, 44100);
   EXPECT_EQ(v->format, PcmFormat::kS16Le);
   EXPECT_LT(v->config.sampling.top_p, 0.0f);  // 0 (unset): the model's default
-  EXPECT_LT(v->config.sampling.period_lock, 0.0f);  // absent: the model's default
+  EXPECT_FALSE(v->config.sampling.period_lock.has_value());  // absent: unset (the model's default, or kept)
   auto h = GoodHeader();
   h.mutable_sampling()->set_period_lock(0.0f);  // present and 0: off, not "default"
   v = ValidateHeader(h, Model(), {});
@@ -51,6 +51,11 @@ TEST(Convert, ValidHeaderIsAccepted) {
   EXPECT_EQ(v->config.sampling.period_lock, 0.0f);
   h.mutable_sampling()->set_period_lock(12.0f);
   EXPECT_EQ(ValidateHeader(h, Model(), {})->config.sampling.period_lock, 12.0f);
+  h.mutable_sampling()->set_period_lock(-1.0f);  // asked for: the model's default (negative for the engine)
+  v = ValidateHeader(h, Model(), {});
+  ASSERT_TRUE(v.ok()) << v.status();
+  ASSERT_TRUE(v->config.sampling.period_lock.has_value());
+  EXPECT_LT(*v->config.sampling.period_lock, 0.0f);
   // Guidance 0 (unset) is the model's default (negative for the engine); 1 is off; others as given.
   EXPECT_LT(v->config.sampling.guidance, 0.0f);
   h.mutable_sampling()->set_guidance(1.0f);
@@ -92,6 +97,8 @@ TEST(Convert, BadHeadersNameTheField) {
   check(h, "top_p");
   h = GoodHeader();
   h.mutable_sampling()->set_period_lock(-2.0f);
+  check(h, "period_lock");
+  h.mutable_sampling()->set_period_lock(-0.5f);
   check(h, "period_lock");
   h.mutable_sampling()->set_period_lock(101.0f);
   check(h, "period_lock");

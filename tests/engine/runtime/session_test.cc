@@ -1165,6 +1165,10 @@ TEST(WarpedSession, PerStylePeriodLockFollowsTheTopStyle) {
   EXPECT_EQ(session(model, {}, kModelDefaultPeriodLock)->period_lock(), 6.0f);
   EXPECT_EQ(session(model, {{"waltz", 0.3f}, {"tango", 0.7f}}, kModelDefaultPeriodLock)->period_lock(), 6.0f);
   EXPECT_EQ(session(model, {{"waltz", 0.7f}, {"tango", 0.3f}}, kModelDefaultPeriodLock)->period_lock(), 0.0f);
+  // A style named twice counts with its summed weight: waltz 0.3 + 0.3 outweighs tango 0.4.
+  EXPECT_EQ(session(model, {{"waltz", 0.3f}, {"tango", 0.4f}, {"waltz", 0.3f}}, kModelDefaultPeriodLock)->period_lock(),
+            0.0f);
+  EXPECT_EQ(session(model, {{"tango", 0.5f}, {"waltz", 0.5f}}, kModelDefaultPeriodLock)->period_lock(), 6.0f);
   EXPECT_EQ(session(model, {{"waltz", 1.0f}}, 4.0f)->period_lock(), 4.0f);  // an explicit weight wins
   // The waltz dances exactly as an explicitly unlocked waltz of the uniform model, which differs from its
   // locked waltz (so the comparison could fail).
