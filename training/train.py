@@ -183,6 +183,9 @@ def main(argv=None) -> int:
   ap.add_argument("--n-head", type=int, default=2)
   ap.add_argument("--lookahead", type=int, default=0, help="0 anticipatory, 1 reactive")
   ap.add_argument("--code-mask", type=float, default=0.4, help="past-motion dropout rate")
+  ap.add_argument("--dropout", type=float, default=0.0,
+                  help="sequence model: dropout on every residual branch's output, training only (not in the "
+                       "weights file; the engine and eval mode never drop)")
   ap.add_argument("--no-pre", action="store_true")
   ap.add_argument("--no-gate", action="store_true")
   ap.add_argument("--shared-mamba", action="store_true")

@@ -20,6 +20,7 @@ from tqdm import tqdm
 from training import train_data as td
 from training.model.config import SeqConfig
 from training.model.danceba import Danceba
+from training.model.layers import set_residual_dropout
 
 STEPS = 64          # training window, code steps (8.5 s)
 BATCH = 16
@@ -222,6 +223,10 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
       model.music_std.copy_(torch.from_numpy(np.maximum(allm.std(0), 1e-2)))
   n_params = sum(p.numel() for p in model.parameters())
   log(f"seq: {n_params} parameters, cfg {json.dumps(cfg.to_dict())}")
+  dropout = float(getattr(args, "dropout", 0.0))
+  if dropout > 0:
+    n_drop = set_residual_dropout(model, dropout)
+    log(f"seq: residual dropout {dropout:g} on {n_drop} residual branches (training only)")
   opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=0.05)
   lr0 = opt.param_groups[0]["lr"]
   history, start, elapsed = [], 0, 0.0

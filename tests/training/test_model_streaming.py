@@ -5,6 +5,7 @@ import torch
 
 from training.model import DecoderStream, PoseVQVAE, SeqConfig, VQConfig
 from training.model.danceba import Danceba, one_hot_style
+from training.model.layers import set_residual_dropout
 from training.model.mamba import Mamba
 from training.model.tgca import TGCABlock
 
@@ -76,6 +77,37 @@ def test_danceba_step_equals_parallel(variant):
     sl.append(c)
   torch.testing.assert_close(torch.stack(su, 1), lu, atol=1e-4, rtol=1e-4)
   torch.testing.assert_close(torch.stack(sl, 1), ll, atol=1e-4, rtol=1e-4)
+
+
+def test_residual_dropout_is_training_only():
+  """--dropout: every residual branch of the TGCA and PMMM blocks drops in training mode; eval mode (export,
+  the step form, the engine) is exactly the model without dropout, and the weights are the same tensors."""
+  torch.manual_seed(4)
+  cfg = SeqConfig(feature_dim=6, pre_dim=8, d_model=32, n_heads=2, codebook_size=16, attn_window=5,
+                  n_styles=3, style_dim=4)
+  model = Danceba(cfg)
+  _perturb(model, 0.1)
+  b, t = 2, 9
+  args = (torch.randn(b, t, 24), torch.randn(b, t, 8), torch.randint(0, 17, (b, t)), torch.randint(0, 17, (b, t)),
+          torch.tensor([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]))
+  model.eval()
+  plain = model(*args)[0]
+  keys = set(model.state_dict())
+  # 3 TGCA blocks (2 base + final) and 2 x 3 PMMM blocks, one dropout module each
+  assert set_residual_dropout(model, 0.5) == cfg.n_base + 1 + 3 * cfg.n_head
+  assert set(model.state_dict()) == keys
+  torch.testing.assert_close(model(*args)[0], plain)
+  model.train()
+  torch.manual_seed(5)
+  a = model(*args)[0]
+  torch.manual_seed(6)
+  c = model(*args)[0]
+  assert not torch.allclose(a, c) and not torch.allclose(a, plain)
+  set_residual_dropout(model, 0.0)  # training mode without dropout is deterministic again
+  torch.manual_seed(5)
+  a = model(*args)[0]
+  torch.manual_seed(6)
+  torch.testing.assert_close(model(*args)[0], a)
 
 
 def test_decoder_is_causal_and_streams():

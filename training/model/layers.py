@@ -31,6 +31,25 @@ class GatedMLP(nn.Module):
     return self.down(F.silu(self.gate(h)) * self.up(h))
 
 
+class ResidualDropout(nn.Dropout):
+  """Dropout on a residual branch's output, for training only: p is 0 unless ``set_residual_dropout``
+  raises it, and eval mode (export, the streaming form, the engine) is always the identity. Not part of
+  the weights file."""
+
+  def __init__(self):
+    super().__init__(0.0)
+
+
+def set_residual_dropout(model: nn.Module, p: float) -> int:
+  """Sets every ResidualDropout of ``model`` to rate p; returns how many there are."""
+  n = 0
+  for m in model.modules():
+    if isinstance(m, ResidualDropout):
+      m.p = float(p)
+      n += 1
+  return n
+
+
 class StyleModulation(nn.Module):
   """SGMD style modulation: x + x / (||x|| * r + 1e-6) * (W sv + b), per token.
 

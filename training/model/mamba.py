@@ -12,7 +12,7 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from training.model.layers import GatedMLP, RMSNorm, StyleModulation
+from training.model.layers import GatedMLP, ResidualDropout, RMSNorm, StyleModulation
 
 
 class Mamba(nn.Module):
@@ -90,11 +90,12 @@ class PMMMBlock(nn.Module):
     self.mamba = Mamba(d, d_state, d_conv, expand)
     self.norm2 = RMSNorm(d)
     self.mlp = GatedMLP(d, 2 * d)
+    self.drop = ResidualDropout()
 
   def forward(self, x: torch.Tensor, sv: torch.Tensor) -> torch.Tensor:  # x (B, T, d)
     x = self.style(x, sv)
-    x = x + self.mamba(self.norm1(x))
-    return x + self.mlp(self.norm2(x))
+    x = x + self.drop(self.mamba(self.norm1(x)))
+    return x + self.drop(self.mlp(self.norm2(x)))
 
   def step(self, x: torch.Tensor, sv: torch.Tensor, state: dict | None):  # x (B, d)
     x = self.style(x, sv)

@@ -13,7 +13,7 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from training.model.layers import GatedMLP, RMSNorm, StyleModulation
+from training.model.layers import GatedMLP, ResidualDropout, RMSNorm, StyleModulation
 
 
 def alibi_slopes(n_heads: int) -> torch.Tensor:
@@ -48,6 +48,7 @@ class TGCABlock(nn.Module):
     self.w_o = nn.Linear(d, d, bias=False)
     self.norm2 = RMSNorm(d)
     self.mlp = GatedMLP(d, 2 * d)
+    self.drop = ResidualDropout()
     self.register_buffer("slopes", alibi_slopes(n_heads), persistent=False)
 
   def _heads(self, t: torch.Tensor) -> torch.Tensor:  # (B, N, d) -> (B, H, N, dh)
@@ -60,10 +61,10 @@ class TGCABlock(nn.Module):
 
   def _finish(self, x, h, a, trace, prefix):
     gate = F.silu(self.w_g(h)) if self.use_gate else 1.0
-    x = x + self.w_o(a * gate)
+    x = x + self.drop(self.w_o(a * gate))
     if trace is not None:
       trace[prefix + ".attn_out"] = x
-    x = x + self.mlp(self.norm2(x))
+    x = x + self.drop(self.mlp(self.norm2(x)))
     return x
 
   def forward(self, x: torch.Tensor, sv: torch.Tensor, trace: dict | None = None,
