@@ -35,6 +35,13 @@ def test_frechet_distance_basics():
   a = rng.normal(size=(400, 5))
   assert metrics.frechet_distance(a, a) == pytest.approx(0.0, abs=1e-6)
   assert metrics.frechet_distance(a, a + 2.0) == pytest.approx(20.0, rel=1e-6)
+  # the split: a shift is all mean term, a rescale all covariance term, and the parts sum to the distance
+  assert metrics.frechet_parts(a, a + 2.0) == pytest.approx((20.0, 0.0), abs=1e-6)
+  b = a * 2.0
+  m, c = metrics.frechet_parts(a, b)
+  assert m == pytest.approx(((a.mean(0) - b.mean(0)) ** 2).sum())
+  assert m + c == pytest.approx(metrics.frechet_distance(a, b))
+  assert c > 4.0  # 5 dimensions of std ~1 against ~2: (2 - 1)^2 each
 
 
 def test_frozen_pose_scores_worse_than_real_on_fid():

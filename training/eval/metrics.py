@@ -44,6 +44,13 @@ class FeatureStats:
     return (feats - self.mean) / self.std
 
 
+def frechet_parts(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+  """frechet_distance(a, b) split into its mean term ||mu_a - mu_b||^2 (the sets' averages differ) and its
+  covariance term (their spreads and correlations differ); the two sum to the distance."""
+  mean_term = float(((a.mean(0) - b.mean(0)) ** 2).sum())
+  return mean_term, frechet_distance(a, b) - mean_term
+
+
 def frechet_distance(a: np.ndarray, b: np.ndarray) -> float:
   """Frechet distance between Gaussians fitted to the rows of a and b (N, D)."""
   mu1, mu2 = a.mean(0), b.mean(0)

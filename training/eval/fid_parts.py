@@ -1,0 +1,87 @@
+"""Where a FID_k comes from: the mean and covariance terms of the kinetic Frechet distance, the kinetic
+dimensions whose averages differ most from the real training dances', and per style the horizontal kinetic
+energy of the torso and wrists and the turn rate, for dance sets beside the real validation dances.
+
+    /usr/bin/python3 -m training.eval.fid_parts D/s0/dances [D/s1/dances ...] [--top 12]
+
+Each argument is a directory of dance JSON files (an engine_eval draw's `dances/`); all of them are pooled
+for the per-style table and the top dimensions, and each gets its own FID_k split. The split uses the same
+features, normaliser and reference as training.eval.evaluate (so FID_k equals engine_eval's).
+"""
+from __future__ import annotations
+
+import argparse
+import glob
+import pathlib
+
+import numpy as np
+
+from training.data.skeleton import JOINT_NAMES
+from training.eval import metrics
+from training.eval.evaluate import Evaluator, load_dance, segment_table
+
+KINDS = ("ke_h", "ke_v", "ee")  # features.kinetic_features: per joint, in this order
+STYLE_JOINTS = ("spine3", "neck", "head", "left_wrist", "left_knee")
+
+
+def _no_beats(_dance):
+  return np.zeros(0)
+
+
+def style_of(name: str) -> str:
+  """tang_DANCE_W_3 -> W (the Tang style letter); other names whole."""
+  parts = name.split("_")
+  return parts[2] if len(parts) > 2 and parts[0] == "tang" else name
+
+
+def per_style(table: dict) -> dict[str, dict]:
+  kin = table["kinetic"].reshape(len(table["rows"]), len(JOINT_NAMES), len(KINDS))
+  out: dict[str, list] = {}
+  for row, k in zip(table["rows"], kin):
+    vals = [k[JOINT_NAMES.index(j), 0] for j in STYLE_JOINTS] + [row["turn_rate"]]
+    out.setdefault(style_of(row["dance"]), []).append(vals)
+  return {s: {"segments": len(v), **dict(zip(STYLE_JOINTS + ("turn_rate",), np.mean(v, 0)))}
+          for s, v in sorted(out.items())}
+
+
+def main(argv=None) -> None:
+  ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+  ap.add_argument("dirs", nargs="+", help="directories of dance JSON files")
+  ap.add_argument("--top", type=int, default=12, help="how many kinetic dimensions to list")
+  args = ap.parse_args(argv)
+  ev = Evaluator.default()
+  val = segment_table(ev.validation, beats_of=_no_beats)
+  vk = ev.norm_k.apply(val["kinetic"])
+  m, c = metrics.frechet_parts(ev.ref_k, vk)
+  print(f"real (validation): FID_k {m + c:.2f} = mean term {m:.2f} + covariance term {c:.2f} ({len(vk)} segments)")
+  pooled, rows = [], []
+  for d in args.dirs:
+    dances = [load_dance(p) for p in sorted(glob.glob(str(pathlib.Path(d) / "*.json")))]
+    if not dances:
+      raise SystemExit(f"fid_parts: no dance JSON files in {d}")
+    t = segment_table(dances, beats_of=_no_beats)
+    k = ev.norm_k.apply(t["kinetic"])
+    m, c = metrics.frechet_parts(ev.ref_k, k)
+    print(f"{d}: FID_k {m + c:.2f} = mean term {m:.2f} + covariance term {c:.2f} ({len(k)} segments)")
+    pooled.append(k)
+    rows += t["rows"]
+  k = np.concatenate(pooled)
+  diff = k.mean(0) - ev.ref_k.mean(0)
+  names = [f"{j}.{kind}" for j in JOINT_NAMES for kind in KINDS]
+  print(f"\nkinetic dimensions furthest from the real training dances' mean (normalised units; pooled):")
+  for i in np.argsort(-diff ** 2)[:args.top]:
+    print(f"  {names[i]:<20} generated - real {diff[i]:+.2f}   std generated {k[:, i].std():.2f}, "
+          f"real train {ev.ref_k[:, i].std():.2f}")
+  ratio = (k.std(0) / ev.ref_k.std(0)).reshape(len(JOINT_NAMES), len(KINDS)).mean(0)
+  print("spread generated / real train, mean over joints: " +
+        ", ".join(f"{kind} {r:.2f}" for kind, r in zip(KINDS, ratio)))
+  gen = {"kinetic": np.concatenate([ev.norm_k.mean + p * ev.norm_k.std for p in pooled]), "rows": rows}
+  print(f"\nper style: horizontal kinetic energy (m^2/s^2) of {', '.join(STYLE_JOINTS)}; turn rate (rad/s)")
+  for label, table in (("real", val), ("generated", gen)):
+    for style, v in per_style(table).items():
+      print(f"  {label:<9} {style:<4} {v['segments']:4d} segs  " +
+            "  ".join(f"{v[j]:.3f}" for j in STYLE_JOINTS) + f"  turn {v['turn_rate']:.2f}")
+
+
+if __name__ == "__main__":
+  main()
