@@ -250,6 +250,34 @@ def set_metadata(path: str, assignments: Mapping[str, object]) -> dict:
   return meta
 
 
+def graft_tensors(path: str, src: str, prefixes: list[str]) -> list[str]:
+  """Rewrites `path` in place with every tensor whose name starts with one of `prefixes` taken from `src`
+  (names, shapes and dtypes must match: the same architecture), the other tensors and the metadata
+  bit-exact; records the graft under metadata training.grafted. Returns the names replaced. E.g. one
+  VQ-VAE's decoder, fine-tuned by training.train_vq_decoder from an older file, into the shipped model."""
+  header, tensors = read_dncw(path)
+  src_header, src_tensors = read_dncw(src)
+  src_dtypes = {e["name"]: e["dtype"] for e in src_header["tensors"]}
+  dtypes = {e["name"]: e["dtype"] for e in header["tensors"]}
+  names = [n for n in tensors if any(n.startswith(p) for p in prefixes)]
+  if not names:
+    raise ValueError(f"no tensor of {path} starts with {', '.join(prefixes)}")
+  for n in names:
+    if n not in src_tensors:
+      raise ValueError(f"{src} has no tensor {n}")
+    if src_tensors[n].shape != tensors[n].shape or src_dtypes[n] != dtypes[n]:
+      raise ValueError(f"{n}: {src} has {src_dtypes[n]} {list(src_tensors[n].shape)}, {path} has "
+                       f"{dtypes[n]} {list(tensors[n].shape)}")
+    tensors[n] = src_tensors[n]
+  meta = header.get("metadata", {})
+  meta.setdefault("training", {}).setdefault("grafted", []).append(
+      {"prefixes": list(prefixes), "tensors": len(names), "from_model_id": src_header["metadata"].get("model_id")})
+  tmp = f"{path}.tmp"
+  write_dncw(tmp, tensors, meta, dtypes)
+  os.replace(tmp, path)  # a failed write leaves the original file intact
+  return names
+
+
 def dtype_summary(header: dict) -> str:
   """Tensor count and stored bytes per dtype of a header's tensor entries, e.g. "f16: 180 tensors ..."."""
   count, size = {}, {}
@@ -381,9 +409,22 @@ def main(argv: list[str] | None = None) -> None:
   ap.add_argument("--set-meta", nargs="+", metavar=("FILE", "KEY=JSON"),
                   help="rewrite FILE in place with metadata KEY (a.b for nested) set to the JSON value, tensors "
                        "bit-exact; e.g. --set-meta models/default.dncw sampling.guidance=3")
+  ap.add_argument("--graft", nargs="+", metavar=("FILE", "SRC"),
+                  help="FILE SRC PREFIX [PREFIX ...]: rewrite FILE in place with the tensors whose names start "
+                       "with a PREFIX taken from SRC (same shapes and dtypes), everything else bit-exact; e.g. "
+                       "--graft models/default.dncw tuned.dncw vq.upper.dec.")
   args = ap.parse_args(argv)
-  if not args.check and not args.convert and not args.set_meta:
-    ap.error("nothing to do: give --check FILE, --convert IN OUT or --set-meta FILE KEY=JSON ...")
+  if not args.check and not args.convert and not args.set_meta and not args.graft:
+    ap.error("nothing to do: give --check FILE, --convert IN OUT, --set-meta FILE KEY=JSON ... or --graft FILE SRC "
+             "PREFIX ...")
+  if args.graft:
+    if len(args.graft) < 3:
+      ap.error("--graft FILE SRC PREFIX [PREFIX ...]")
+    path, src, *prefixes = args.graft
+    before = read_dncw(path)[1]
+    names = graft_tensors(path, src, prefixes)
+    print(f"{path}: {len(names)} tensors from {src}; {change_summary(before, read_dncw(path)[1])}")
+    args.check = args.check or path
   if args.set_meta:
     path, *pairs = args.set_meta
     if not pairs or any("=" not in p for p in pairs):

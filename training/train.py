@@ -77,10 +77,10 @@ def stage_vqdec(args, run: pathlib.Path, log: Logger) -> dict:
     vq = vqs[part]
     t0 = time.time()
     hist = finetune_decoder(vq, part, training_arrays(part, args.vq_mirror), args.vq_dec_iters,
-                            args.vq_energy_weight, lr=args.vq_dec_lr, log=log)
+                            args.vq_energy_weight[part], lr=args.vq_dec_lr, log=log)
     tmp = path.with_suffix(".tmp")
     torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict(), "history": hist, "iter": args.vq_dec_iters,
-                "finetune": {"energy_weight": args.vq_energy_weight, "lr": args.vq_dec_lr}}, tmp)
+                "finetune": {"energy_weight": args.vq_energy_weight[part], "lr": args.vq_dec_lr}}, tmp)
     os.replace(tmp, path)
     log(f"vqdec-{part}: {args.vq_dec_iters} iterations in {time.time() - t0:.0f} s -> {path}")
   val = [td.load_clip(i, with_music=False) for i in td.load_split()["validation"]]
@@ -142,6 +142,27 @@ def parse_style_weights(text: str) -> dict[str, float]:
   return out
 
 
+def parse_part_weights(text: str) -> dict[str, float]:
+  """'0.3' -> both VQ-VAE parts 0.3; 'upper=0.1,lower=0.3' -> per part (a part not named gets 0); each >= 0."""
+  text = text.strip()
+  try:
+    w = float(text)
+  except ValueError:
+    out = {"upper": 0.0, "lower": 0.0}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+      name, sep, value = part.partition("=")
+      try:
+        out[name] = float(value) if sep and name in ("upper", "lower") else float("nan")
+      except ValueError:
+        out[name] = float("nan")
+      if not out[name] >= 0.0:
+        raise ValueError(f"'{part}' is not upper=W or lower=W with W >= 0")
+    return out
+  if not w >= 0.0:
+    raise ValueError(f"'{text}': the weight must be >= 0")
+  return {"upper": w, "lower": w}
+
+
 def main(argv=None) -> int:
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   ap.add_argument("--run", default=str(REPO / "training" / "runs" / "default"))
@@ -164,8 +185,9 @@ def main(argv=None) -> int:
                   help="VQ-VAEs: weight of the acceleration term of the reconstruction loss")
   ap.add_argument("--vq-dec-iters", type=int, default=1500,
                   help="vqdec stage: iterations per decoder of the energy fine-tuning (0: no fine-tuning)")
-  ap.add_argument("--vq-energy-weight", type=float, default=0.3,
-                  help="vqdec stage: weight of the energy-matching term (training.train_vq_decoder.energy_loss)")
+  ap.add_argument("--vq-energy-weight", default="upper=0.1,lower=0.3",
+                  help="vqdec stage: weight of the energy-matching term (training.train_vq_decoder.energy_loss), "
+                       "one number for both parts or upper=W,lower=W (docs/training.md: the upper body's 0.1)")
   ap.add_argument("--vq-dec-lr", type=float, default=1e-4, help="vqdec stage: learning rate")
   ap.add_argument("--seq-iters", type=int, default=1000,
                   help="iterations of the sequence model (the tempo-normalised phase when pretraining; "
@@ -231,6 +253,10 @@ def main(argv=None) -> int:
     args.style_period_lock = parse_style_weights(args.style_period_lock)
   except ValueError as e:
     ap.error(f"--style-period-lock: {e}")
+  try:
+    args.vq_energy_weight = parse_part_weights(args.vq_energy_weight)
+  except ValueError as e:
+    ap.error(f"--vq-energy-weight: {e}")
   raw_periods = args.period_lock_periods
   try:
     args.period_lock_periods = [int(x) for x in raw_periods.split(",")]

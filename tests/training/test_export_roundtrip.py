@@ -226,3 +226,28 @@ def test_set_meta_changes_only_the_named_fields(tmp_path):
     np.testing.assert_array_equal(_bits(t1[name]), _bits(a), err_msg=name)
   with pytest.raises(subprocess.CalledProcessError):
     _run_export("--set-meta", str(path), "sampling.guidance")   # no value
+
+
+def test_graft_replaces_only_the_prefixed_tensors(tmp_path):
+  src = REPO / "models" / "test-tiny.dncw"
+  a, b = tmp_path / "a.dncw", tmp_path / "b.dncw"
+  _run_export("--convert", str(src), str(a), "--dtype", "f16")
+  _run_export("--convert", str(src), str(b), "--dtype", "f16")
+  hb, tb = read_dncw(str(b))
+  dec = [n for n in tb if n.startswith("vq.upper.dec.")]
+  assert dec
+  # b: the upper decoder changed (as a fine-tuning would), everything else as a
+  changed = {n: (t + 0.5).astype(t.dtype) if n in dec else t for n, t in tb.items()}
+  write_dncw(str(b), changed, hb["metadata"], {e["name"]: e["dtype"] for e in hb["tensors"]})
+  changed = read_dncw(str(b))[1]  # as stored (f16 tensors rounded)
+  h0, t0 = read_dncw(str(a))
+  report = _run_export("--graft", str(a), str(b), "vq.upper.dec.")
+  assert f"{len(dec)} tensors from" in report
+  h1, t1 = read_dncw(str(a))
+  for name, t in t0.items():
+    want = changed[name] if name in dec else t
+    np.testing.assert_array_equal(_bits(t1[name]), _bits(want), err_msg=name)
+  assert [(e["name"], e["dtype"]) for e in h1["tensors"]] == [(e["name"], e["dtype"]) for e in h0["tensors"]]
+  assert h1["metadata"]["training"]["grafted"][-1]["prefixes"] == ["vq.upper.dec."]
+  with pytest.raises(subprocess.CalledProcessError):
+    _run_export("--graft", str(a), str(b), "no.such.prefix")

@@ -156,4 +156,12 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
     with pytest.raises(SystemExit) as e:
       train.main(["--run", str(tmp_path / "never"), "--period-lock-sharpness", bad])
     assert e.value.code == 2
+  # The vqdec stage's energy weight: one number for both parts, or per part (a part not named: 0).
+  assert train.parse_part_weights("0.3") == {"upper": 0.3, "lower": 0.3}
+  assert train.parse_part_weights("upper=0.1, lower=0.3") == {"upper": 0.1, "lower": 0.3}
+  assert train.parse_part_weights("lower=1") == {"upper": 0.0, "lower": 1.0}
+  for bad in ("-1", "upper=-0.1", "arms=0.1", "upper", "upper=x"):
+    with pytest.raises(SystemExit) as e:
+      train.main(["--run", str(tmp_path / "never"), "--vq-energy-weight", bad])
+    assert e.value.code == 2
   assert not (tmp_path / "never").exists()
