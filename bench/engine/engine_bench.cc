@@ -8,6 +8,10 @@
 //   BM_Generate      a whole stream (audio front end included) over 30 s of test audio: x real time.
 //   BM_EndOfAudio/R  Session::EndOfAudio alone after 10 s of stereo audio at R Hz (the silence padding and
 //                    front-end flush a session's end costs the thread that runs it).
+//   BM_FootLock      the foot lock alone (FootLock::Apply) over 30 s of one session's decoded rumba frames
+//                    (generated with the lock off), frame after frame: its cost per 30 fps frame; the
+//                    "corrected" counter is the share of frames in which a foot's correction exceeds 5 mm,
+//                    "shift_mm" the mean correction per foot and frame.
 // The model is models/default.dncw when it exists (or $DANCE_BENCH_MODEL), otherwise a random model with
 // the default training sizes built in memory. Memory per session is printed once at start.
 //
@@ -158,6 +162,41 @@ void BM_EndOfAudio(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_EndOfAudio)->Arg(24000)->Arg(44100)->Unit(benchmark::kMillisecond);
+
+void BM_FootLock(benchmark::State& state) {
+  SessionOptions opt;
+  opt.seed = 1;
+  opt.sampling.foot_lock = false;
+  if (BenchModel()->StyleIndex("rumba").ok()) opt.style = {{"rumba", 1.0f}};
+  std::unique_ptr<Session> s = *Session::Create(BenchModel(), opt);
+  (void)s->PushAudio(testing::TestAudio(30.0));
+  s->EndOfAudio();
+  while (s->StepsReady() > 0) (void)StepBatch({s.get()});
+  std::vector<PoseFrame> frames;
+  s->PopFrames(&frames);
+  const FootLock lock(BenchModel()->skeleton());
+  FootLockState lock_state;
+  size_t i = 0, corrected = 0, applied = 0;
+  double shift = 0.0;
+  for (auto _ : state) {
+    if (i == frames.size()) {
+      i = 0;
+      lock_state = FootLockState();
+    }
+    std::array<Eigen::Vector3f, kNumJoints> p = frames[i].positions;
+    lock.Apply(lock_state, &p);
+    benchmark::DoNotOptimize(p);
+    const float left = lock_state.feet[0].correction.norm(), right = lock_state.feet[1].correction.norm();
+    corrected += left > 0.005f || right > 0.005f;
+    shift += 0.5 * (left + right);
+    ++applied;
+    ++i;
+  }
+  state.counters["corrected"] = applied > 0 ? static_cast<double>(corrected) / static_cast<double>(applied) : 0.0;
+  state.counters["shift_mm"] = applied > 0 ? 1000.0 * shift / static_cast<double>(applied) : 0.0;
+  state.counters["frames"] = static_cast<double>(frames.size());
+}
+BENCHMARK(BM_FootLock)->Unit(benchmark::kNanosecond);
 
 void PrintMemory() {
   std::vector<std::unique_ptr<Session>> s = MakeSessions(1, 1.0, "", kModelDefaultPeriodLock, 1.0f);
