@@ -244,10 +244,15 @@ def set_metadata(path: str, assignments: Mapping[str, object]) -> dict:
       if not isinstance(node, dict):
         raise ValueError(f"metadata {key}: {k} is not an object")
     node[leaf] = value
-  tmp = f"{path}.tmp"
-  write_dncw(tmp, tensors, meta, {e["name"]: e["dtype"] for e in header["tensors"]})
-  os.replace(tmp, path)  # a failed write leaves the original file intact
+  _rewrite(path, tensors, meta, {e["name"]: e["dtype"] for e in header["tensors"]})
   return meta
+
+
+def _rewrite(path: str, tensors: dict[str, np.ndarray], meta: dict, dtypes: Mapping[str, str]) -> None:
+  """write_dncw to a temporary file, then over `path`: a failed write leaves the original file intact."""
+  tmp = f"{path}.tmp"
+  write_dncw(tmp, tensors, meta, dtypes)
+  os.replace(tmp, path)
 
 
 def graft_tensors(path: str, src: str, prefixes: list[str]) -> list[str]:
@@ -272,9 +277,7 @@ def graft_tensors(path: str, src: str, prefixes: list[str]) -> list[str]:
   meta = header.get("metadata", {})
   meta.setdefault("training", {}).setdefault("grafted", []).append(
       {"prefixes": list(prefixes), "tensors": len(names), "from_model_id": src_header["metadata"].get("model_id")})
-  tmp = f"{path}.tmp"
-  write_dncw(tmp, tensors, meta, dtypes)
-  os.replace(tmp, path)  # a failed write leaves the original file intact
+  _rewrite(path, tensors, meta, dtypes)
   return names
 
 

@@ -54,7 +54,7 @@ def main(argv=None) -> None:
   vk = ev.norm_k.apply(val["kinetic"])
   m, c = metrics.frechet_parts(ev.ref_k, vk)
   print(f"real (validation): FID_k {m + c:.2f} = mean term {m:.2f} + covariance term {c:.2f} ({len(vk)} segments)")
-  pooled, rows = [], []
+  pooled, raw, rows = [], [], []
   for d in args.dirs:
     dances = [load_dance(p) for p in sorted(glob.glob(str(pathlib.Path(d) / "*.json")))]
     if not dances:
@@ -64,6 +64,7 @@ def main(argv=None) -> None:
     m, c = metrics.frechet_parts(ev.ref_k, k)
     print(f"{d}: FID_k {m + c:.2f} = mean term {m:.2f} + covariance term {c:.2f} ({len(k)} segments)")
     pooled.append(k)
+    raw.append(t["kinetic"])
     rows += t["rows"]
   k = np.concatenate(pooled)
   diff = k.mean(0) - ev.ref_k.mean(0)
@@ -75,7 +76,7 @@ def main(argv=None) -> None:
   ratio = (k.std(0) / ev.ref_k.std(0)).reshape(len(JOINT_NAMES), len(KINDS)).mean(0)
   print("spread generated / real train, mean over joints: " +
         ", ".join(f"{kind} {r:.2f}" for kind, r in zip(KINDS, ratio)))
-  gen = {"kinetic": np.concatenate([ev.norm_k.mean + p * ev.norm_k.std for p in pooled]), "rows": rows}
+  gen = {"kinetic": np.concatenate(raw), "rows": rows}
   print(f"\nper style: horizontal kinetic energy (m^2/s^2) of {', '.join(STYLE_JOINTS)}; turn rate (rad/s)")
   for label, table in (("real", val), ("generated", gen)):
     for style, v in per_style(table).items():
