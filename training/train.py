@@ -91,8 +91,10 @@ def stage_vqdec(args, run: pathlib.Path, log: Logger) -> dict:
   return report
 
 
-def load_vqs(run: pathlib.Path, fine_tuned: bool = True):
-  """The run's VQ-VAEs; with fine_tuned, a part's vqdec_{part}.pt (decoder fine-tuned) when it exists."""
+def load_vqs(run: pathlib.Path, fine_tuned: bool = True, own: bool = False):
+  """The run's VQ-VAEs; with fine_tuned, a part's vqdec_{part}.pt (decoder fine-tuned) when it exists; with
+  own too, the upper body's owndec_upper.pt when it was made for the run's current sequence model
+  (own_decoder)."""
   from training.model.vqvae import PoseVQVAE
   vqs = {}
   for part in ("upper", "lower"):
@@ -101,7 +103,88 @@ def load_vqs(run: pathlib.Path, fine_tuned: bool = True):
     vq = PoseVQVAE(VQConfig.from_dict(ck["cfg"]))
     vq.load_state_dict(ck["model"])
     vqs[part] = vq.eval()
-  return vqs
+  return own_decoder(vqs, run) if fine_tuned and own else vqs
+
+
+def seq_digest(run: pathlib.Path) -> str | None:
+  """sha256 of the run's sequence model checkpoint (None without one): the owndec stage's decoder is valid
+  only for the model whose codes it was fine-tuned on."""
+  import hashlib
+  path = run / "seq.pt"
+  return hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None
+
+
+def own_decoder(vqs: dict, run: pathlib.Path) -> dict:
+  """vqs with the upper decoder of <run>/owndec_upper.pt when that file exists and was fine-tuned on the
+  codes of the run's current sequence model; otherwise vqs unchanged."""
+  path = run / "owndec_upper.pt"
+  if not path.is_file():
+    return vqs
+  ck = torch.load(path)
+  if ck.get("seq_sha256") != seq_digest(run):
+    return vqs
+  import copy
+  out = dict(vqs)
+  out["upper"] = copy.deepcopy(vqs["upper"])
+  out["upper"].load_state_dict(ck["model"])
+  out["upper"].eval()
+  return out
+
+
+def stage_owndec(args, vqs: dict, run: pathlib.Path, log: Logger) -> dict:
+  """The upper-body decoder fine-tuned on the sequence model's own codes (training.train_vq_decoder.OwnCodes):
+  the exported model (args.out) dances every Tang training song in its own style through the engine
+  (dance-generate, seeds --own-seeds) into <run>/own_dances/, then the upper decoder of `vqs` is fine-tuned
+  with train_vq_decoder's loss (the vqdec stage's energy weight) plus --own-weight x the own-codes term.
+  Writes <run>/owndec_upper.pt and owndec_report.json, both keyed to the sequence model (seq_digest); returns
+  vqs with the new upper decoder (the caller exports again)."""
+  import copy
+  import shutil
+
+  from training.eval.engine_eval import generate_song
+  from training.eval.engine_tempo import dance_generate_bin
+  from training.train_vq import validation_report
+  from training.train_vq_decoder import finetune_decoder, training_arrays
+  if not dance_generate_bin().is_file():
+    raise SystemExit(f"owndec: {dance_generate_bin()} not found: build the engine (cmake --build build) or set "
+                     "DANCE_BUILD_DIR")
+  digest = seq_digest(run)
+  dances = run / "own_dances"
+  stamp = dances / "seq_sha256"
+  if dances.is_dir() and (not stamp.is_file() or stamp.read_text() != str(digest)):
+    shutil.rmtree(dances)  # danced by another sequence model
+  dances.mkdir(parents=True, exist_ok=True)
+  stamp.write_text(str(digest))
+  ids = [i for i in td.paired_ids(td.load_split()["train"]) if i.startswith("tang_")]
+  t0 = time.time()
+  for seed in args.own_seeds:
+    for mid in ids:
+      out = dances / f"{mid}_s{seed}.json"
+      if not out.is_file():
+        tmp = dances / f"{mid}_s{seed}.tmp.json"
+        generate_song(args.out, mid, tmp, seed, 1.0)
+        os.replace(tmp, out)
+  log(f"owndec: {len(ids)} training songs x {len(args.own_seeds)} seeds danced by the engine in "
+      f"{time.time() - t0:.0f} s -> {dances}")
+  vq = copy.deepcopy(vqs["upper"])
+  t0 = time.time()
+  hist = finetune_decoder(vq, "upper", training_arrays("upper", args.vq_mirror), args.own_iters,
+                          args.vq_energy_weight["upper"], lr=args.vq_dec_lr, log=log, own_dances=str(dances),
+                          own_weight=args.own_weight, own_anchor=args.own_anchor)
+  settings = {"iters": args.own_iters, "own_weight": args.own_weight, "own_anchor": args.own_anchor,
+              "energy_weight": args.vq_energy_weight["upper"], "lr": args.vq_dec_lr, "seeds": args.own_seeds}
+  path = run / "owndec_upper.pt"
+  tmp = path.with_suffix(".tmp")
+  torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict(), "history": hist, "iter": args.own_iters,
+              "finetune": settings, "seq_sha256": digest}, tmp)
+  os.replace(tmp, path)
+  log(f"owndec-upper: {args.own_iters} iterations in {time.time() - t0:.0f} s -> {path}")
+  new = dict(vqs, upper=vq)
+  val = [td.load_clip(i, with_music=False) for i in td.load_split()["validation"]]
+  report = dict(validation_report(new, val), **settings, seq_sha256=digest, last=hist[-1] if hist else None)
+  log(f"owndec validation: {json.dumps(report)}")
+  (run / "owndec_report.json").write_text(json.dumps(report, indent=1))
+  return new
 
 
 def pretrain_seq(args, cfg, vqs, factors, run: pathlib.Path, vq_run: pathlib.Path, log: Logger) -> pathlib.Path:
@@ -166,7 +249,7 @@ def parse_part_weights(text: str) -> dict[str, float]:
 def main(argv=None) -> int:
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   ap.add_argument("--run", default=str(REPO / "training" / "runs" / "default"))
-  ap.add_argument("--stages", default="data,vq,vqdec,seq,export,eval")
+  ap.add_argument("--stages", default="data,vq,vqdec,seq,export,owndec,eval")
   ap.add_argument("--threads", type=int, default=2)
   ap.add_argument("--vq-iters", type=int, default=6000)
   ap.add_argument("--vq-width", type=int, default=128)
@@ -189,6 +272,14 @@ def main(argv=None) -> int:
                   help="vqdec stage: weight of the energy-matching term (training.train_vq_decoder.energy_loss), "
                        "one number for both parts or upper=W,lower=W (docs/training.md: the upper body's 0.1)")
   ap.add_argument("--vq-dec-lr", type=float, default=1e-4, help="vqdec stage: learning rate")
+  ap.add_argument("--own-iters", type=int, default=1000,
+                  help="owndec stage: iterations of the upper decoder's fine-tuning on the model's own codes "
+                       "(0: no owndec stage)")
+  ap.add_argument("--own-weight", type=float, default=1.0,
+                  help="owndec stage: weight of the own-codes term (training.train_vq_decoder.OwnCodes)")
+  ap.add_argument("--own-anchor", type=float, default=100.0,
+                  help="owndec stage: weight of the posture anchor inside the own-codes term")
+  ap.add_argument("--own-seeds", default="10,11", help="owndec stage: engine seeds danced per training song")
   ap.add_argument("--seq-iters", type=int, default=1000,
                   help="iterations of the sequence model (the tempo-normalised phase when pretraining; "
                        "also the default of fixed-rate runs, --tempo-ref 0)")
@@ -266,6 +357,13 @@ def main(argv=None) -> int:
     ap.error(f"--period-lock-periods must be two integers in 1..4 (upper,lower), got '{raw_periods}'")
   if not 0.0 <= args.guidance <= 100.0:
     ap.error(f"--guidance must be in [0, 100], got {args.guidance}")
+  try:
+    args.own_seeds = [int(x) for x in args.own_seeds.split(",")]
+  except ValueError:
+    ap.error(f"--own-seeds must be comma-separated integers, got '{args.own_seeds}'")
+  for name in ("own_iters", "own_weight", "own_anchor"):
+    if getattr(args, name) < 0:
+      ap.error(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
   torch.set_num_threads(args.threads)
   os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
   run = pathlib.Path(args.run)
@@ -302,12 +400,18 @@ def main(argv=None) -> int:
       args.lr = args.finetune_lr
     if "seq" in stages:
       train_seq.stage_seq(args, cfg, vqs, factors, run, log)
+    base_vqs, vqs = vqs, own_decoder(vqs, run)  # the owndec stage's upper decoder if it fits this seq.pt
     # Fixed-rate models are evaluated from the checkpoint (torch generator) and the report goes into the
     # export; tempo-normalised ones are evaluated from the exported file by the engine.
     if "eval" in stages and args.tempo_ref <= 0:
       train_seq.stage_eval(args, vqs, run, log)
     if "export" in stages:
       train_seq.stage_export(args, vqs, run, log)
+    if "owndec" in stages and args.own_iters > 0 and args.tempo_ref > 0 and "export" in stages:
+      report = run / "owndec_report.json"
+      if not (report.is_file() and json.loads(report.read_text()).get("seq_sha256") == seq_digest(run)):
+        vqs = stage_owndec(args, base_vqs, run, log)
+        train_seq.stage_export(args, vqs, run, log)
     if "eval" in stages and args.tempo_ref > 0:
       train_seq.stage_eval(args, vqs, run, log)
   from training.train_plots import plot_run

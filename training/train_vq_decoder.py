@@ -14,6 +14,16 @@ and mean |acceleration| of the decoded motion against the real window's, as squa
 decoder outputs about the conditional mean of the motion given the codes and so loses energy (docs/training.md,
 "Why FID_k stays ~20"); the energy term asks each window to keep its real energy.
 
+With --own-dances DIR --own-weight W (the one command's owndec stage), the loss also has W x the own-codes
+term (OwnCodes): DIR holds the engine's dances on the training songs (dance-generate JSON); windows of their
+codes are decoded and, per style, the decoded motion's energy statistics are matched in mean and spread to
+the real training dances of that style. The decoder was trained only on real code sequences; the sequence
+model's sequences differ (their codes jump further between steps), and decoded from them each style's
+energy was off (default-20261204-4 on the training songs, mean log kinetic energy per joint: waltz +0.57
+real standard deviations, rumba +0.27, tango -0.77). This term fits the decoder to the codes it will
+actually decode. --own-anchor A adds A x the squared change of each
+window's mean decoded pose against the decoder before fine-tuning (posture kept; energy free).
+
 Writes <out>/vq_upper.pt and <out>/vq_lower.pt in train_vq's checkpoint format ("model", "cfg", "history",
 "iter"), which training.eval.vq_recon --upper-ckpt / --lower-ckpt read. With --export FILE it also writes
 the model file with the fine-tuned decoders: every other tensor and the metadata as in --model (the
@@ -86,7 +96,7 @@ def freeze_all_but_decoder(vq: PoseVQVAE) -> list[torch.nn.Parameter]:
 
 
 def decoder_step(vq: PoseVQVAE, opt: torch.optim.Optimizer, params, x: torch.Tensor, part: str,
-                 energy_weight: float, groups, eps) -> dict:
+                 energy_weight: float, groups, eps, own=None, own_weight: float = 0.0) -> dict:
   """One optimisation step on windows x (B, T, dim) (raw features). Returns the logged terms."""
   captured = {}
   hook = vq.decoder.register_forward_hook(lambda m, inp, out: captured.__setitem__("recon", out))
@@ -96,6 +106,10 @@ def decoder_step(vq: PoseVQVAE, opt: torch.optim.Optimizer, params, x: torch.Ten
     hook.remove()
   e = energy_loss(vq.denormalise(captured["recon"]), x, groups, eps)
   total = loss + energy_weight * e
+  if own is not None:
+    o, own_logs = own.loss()
+    total = total + own_weight * o
+    logs.update(own_logs)
   opt.zero_grad()
   total.backward()
   torch.nn.utils.clip_grad_norm_(params, 1.0)
@@ -111,21 +125,144 @@ def energy_eps(arrays: list[np.ndarray], groups, rng: np.random.Generator, frac:
   return frac * e.mean(0)
 
 
+def step_codes(frame_upper, frame_lower) -> tuple[np.ndarray, np.ndarray]:
+  """A dance file's per-frame (upper, lower) codes -> the codes per model step. The engine decodes 4 frames
+  per step in the model's tempo-normalised time and warps them to 30 fps, so a step covers about 4 / f real
+  frames (f the song's tempo factor): runs of the same code pair are split into steps of the most common
+  run length (the codes of one step always share a run; consecutive equal steps are recovered by length)."""
+  u, l = np.asarray(frame_upper), np.asarray(frame_lower)
+  change = np.flatnonzero((u[1:] != u[:-1]) | (l[1:] != l[:-1])) + 1
+  starts = np.concatenate([[0], change])
+  runs = np.diff(np.concatenate([starts, [len(u)]]))
+  mode = np.bincount(runs).argmax()
+  near = runs[np.abs(runs - mode) <= 1.5]
+  length = near.mean()
+  n = np.maximum(1, np.rint(runs / length)).astype(int)
+  return np.repeat(u[starts], n), np.repeat(l[starts], n)
+
+
+class OwnCodes:
+  """The moment-matching term on the sequence model's own codes: windows of `steps` model steps of the
+  engine's dances on the training songs (step_codes), decoded by the part's decoder; per style, the mean
+  and standard deviation over windows of each channel group's log energy statistics (window_energy) against
+  the same statistics of the real training dances of that style, in units of the real standard deviation.
+  The decoder does not see the style; the term asks that, decoded from the codes the model actually samples
+  (which jump further between steps than the real dances' encodings), each style's motion has its real
+  energy, on average and in spread."""
+
+  def __init__(self, vq: PoseVQVAE, part: str, dances: list[tuple[int, np.ndarray]],
+               real: dict[int, list[np.ndarray]], groups, eps, steps: int = 32, per_style: int = 8,
+               seed: int = 0, real_windows: int = 512, anchor: float = 0.0):
+    import copy
+    self.vq, self.groups, self.eps, self.steps, self.per_style = vq, groups, eps, steps, per_style
+    self.anchor = anchor
+    # The decoder as it was: the posture anchor keeps each window's mean pose where it decoded before.
+    self.before = copy.deepcopy(vq.decoder).eval() if anchor > 0 else None
+    if self.before is not None:
+      for p in self.before.parameters():
+        p.requires_grad_(False)
+    self.rng = np.random.default_rng(seed)
+    frames = steps * 4  # downsampling 4 (VQConfig)
+    # Styles with at least one code sequence of `steps` steps and one real clip of as many frames.
+    self.styles = sorted(s for s in {t for t, _ in dances} & set(real)
+                         if any(len(c) >= steps for t, c in dances if t == s)
+                         and any(len(a) >= frames for a in real[s]))
+    if not self.styles:
+      raise ValueError(f"OwnCodes: no style has both a dance of {steps} steps and a real clip of {frames} frames")
+    self.codes = {s: [c for t, c in dances if t == s and len(c) >= steps] for s in self.styles}
+    self.target = {}
+    for s in self.styles:
+      arrs = [a for a in real[s] if len(a) >= frames]
+      lengths = np.array([len(a) - frames + 1 for a in arrs], dtype=np.float64)
+      wins = []
+      for i in self.rng.choice(len(arrs), real_windows, p=lengths / lengths.sum()):
+        o = self.rng.integers(0, len(arrs[i]) - frames + 1)
+        wins.append(arrs[i][o:o + frames])
+      with torch.no_grad():
+        e = self.log_energy(torch.from_numpy(np.stack(wins)))
+      self.target[s] = (e.mean(0), e.std(0) + 1e-3)
+
+  def log_energy(self, x: torch.Tensor) -> torch.Tensor:
+    return torch.log(window_energy(x[:, ENERGY_SKIP:], self.groups) + self.eps)
+
+  def sample(self, s: int) -> torch.Tensor:
+    seqs = self.codes[s]
+    out = []
+    for i in self.rng.integers(0, len(seqs), self.per_style):
+      o = self.rng.integers(0, len(seqs[i]) - self.steps + 1)
+      out.append(seqs[i][o:o + self.steps])
+    return torch.from_numpy(np.stack(out)).long()
+
+  def loss(self) -> tuple[torch.Tensor, dict]:
+    terms, logs = [], {}
+    anchors = []
+    for s in self.styles:
+      z = self.vq.quantizer.codebook[self.sample(s)]
+      out = self.vq.decoder(z)
+      dec = self.vq.denormalise(out)
+      e = self.log_energy(dec)
+      mu, sd = self.target[s]
+      dm = (e.mean(0) - mu) / sd
+      ds = (e.std(0) - sd) / sd
+      terms.append(dm.pow(2).mean() + ds.pow(2).mean())
+      if self.before is not None:
+        with torch.no_grad():
+          ref = self.before(z)
+        anchors.append((out[:, ENERGY_SKIP:].mean(1) - ref[:, ENERGY_SKIP:].mean(1)).pow(2).mean())
+      logs[f"own_mean_{s}"] = float(dm[:, 0].mean())
+    total = torch.stack(terms).mean()
+    logs["own"] = float(total)
+    if anchors:
+      a = torch.stack(anchors).mean()
+      logs["anchor"] = float(a)
+      total = total + self.anchor * a
+    return total, logs
+
+
+def load_own_codes(directory: str, part: str) -> list[tuple[int, np.ndarray]]:
+  """Every dance file in `directory` (dance-generate JSON, one style each) -> (style index, step codes)."""
+  from training.train_data import STYLES
+  out = []
+  for p in sorted(pathlib.Path(directory).glob("*.json")):
+    d = json.loads(p.read_text())
+    style = max(d["style"].items(), key=lambda kv: kv[1])[0]
+    up, low = step_codes(d["upper_codes"], d["lower_codes"])
+    out.append((STYLES.index(style), up if part == "upper" else low))
+  return out
+
+
+def real_by_style(part: str) -> dict[int, list[np.ndarray]]:
+  """The training clips of `part` grouped by style index."""
+  from training.train_vq import training_clips
+  out: dict[int, list[np.ndarray]] = {}
+  for c in training_clips(False):
+    out.setdefault(c.style, []).append(getattr(c, part))
+  return out
+
+
 def finetune_decoder(vq: PoseVQVAE, part: str, arrays: list[np.ndarray], iters: int, energy_weight: float,
                      lr: float = 1e-4, batch: int = 32, seed: int = 0, log=print,
-                     log_every: int = 100) -> list[dict]:
-  """Fine-tunes vq.decoder in place (cosine decay to 0.1 lr, as train_vq); returns the loss history."""
+                     log_every: int = 100, own_dances: str | None = None,
+                     own_weight: float = 0.0, own_anchor: float = 0.0) -> list[dict]:
+  """Fine-tunes vq.decoder in place (cosine decay to 0.1 lr, as train_vq); returns the loss history.
+  With `own_dances` (a directory of the engine's dances on the training songs) and `own_weight` > 0, adds
+  own_weight x OwnCodes.loss."""
   torch.manual_seed(seed)
   rng = np.random.default_rng(seed)
   params = freeze_all_but_decoder(vq)
   groups = channel_groups(vq.cfg.in_dim)
   eps = energy_eps(arrays, groups, np.random.default_rng(seed + 1))
+  own = None
+  if own_dances and own_weight > 0:
+    own = OwnCodes(vq, part, load_own_codes(own_dances, part), real_by_style(part), groups, eps, seed=seed + 2,
+                  anchor=own_anchor)
   opt = torch.optim.AdamW(params, lr=lr, weight_decay=0.0)
   history, t0, acc = [], time.time(), {}
   for it in tqdm(range(iters), desc=f"vqdec-{part}", mininterval=10):
     for g in opt.param_groups:
       g["lr"] = lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * it / iters)))
-    logs = decoder_step(vq, opt, params, sample_windows(arrays, batch, rng), part, energy_weight, groups, eps)
+    logs = decoder_step(vq, opt, params, sample_windows(arrays, batch, rng), part, energy_weight, groups, eps,
+                        own, own_weight)
     for k, v in logs.items():
       acc[k] = acc.get(k, 0.0) + v
     if (it + 1) % log_every == 0 or it == iters - 1:
@@ -156,6 +293,11 @@ def main(argv=None) -> int:
   ap.add_argument("--parts", default="upper,lower")
   ap.add_argument("--mirror", action="store_true", help="also the mirrored training motion (as --vq-mirror)")
   ap.add_argument("--threads", type=int, default=1)
+  ap.add_argument("--own-dances", default=None,
+                  help="directory of the engine's dances on the training songs (OwnCodes; with --own-weight)")
+  ap.add_argument("--own-weight", type=float, default=0.0)
+  ap.add_argument("--own-anchor", type=float, default=0.0,
+                  help="weight of the posture anchor inside the own-codes term (window mean pose as decoded before)")
   ap.add_argument("--out", required=True, help="directory for vq_upper.pt / vq_lower.pt")
   ap.add_argument("--export", default=None, help="also write the model file with the fine-tuned decoders here")
   ap.add_argument("--model-id", default=None, help="--export: the new file's model id (default: --model's)")
@@ -169,7 +311,8 @@ def main(argv=None) -> int:
     t0 = time.time()
     vq = vqs[part]
     hist = finetune_decoder(vq, part, training_arrays(part, args.mirror), args.iters, args.energy_weight,
-                            lr=args.lr, batch=args.batch, seed=args.seed)
+                            lr=args.lr, batch=args.batch, seed=args.seed, own_dances=args.own_dances,
+                            own_weight=args.own_weight, own_anchor=args.own_anchor)
     torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict(), "history": hist, "iter": args.iters,
                 "finetune": {k: v for k, v in vars(args).items()}}, out / f"vq_{part}.pt")
     print(f"vqdec-{part}: {args.iters} iterations in {time.time() - t0:.0f} s -> {out / f'vq_{part}.pt'}",

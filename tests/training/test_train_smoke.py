@@ -164,4 +164,10 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
     with pytest.raises(SystemExit) as e:
       train.main(["--run", str(tmp_path / "never"), "--vq-energy-weight", bad])
     assert e.value.code == 2
+  # The owndec stage's seeds and weights.
+  for flag, bad in (("--own-seeds", "1,x"), ("--own-seeds", ""), ("--own-weight", "-1"), ("--own-anchor", "-0.5"),
+                    ("--own-iters", "-3")):
+    with pytest.raises(SystemExit) as e:
+      train.main(["--run", str(tmp_path / "never"), flag, bad])
+    assert e.value.code == 2
   assert not (tmp_path / "never").exists()

@@ -14,9 +14,9 @@ def _tiny(dim: int) -> PoseVQVAE:
                             vel_weight=4.0, acc_weight=4.0)).eval()
 
 
-def _arrays(dim: int, seed: int = 0) -> list[np.ndarray]:
+def _arrays(dim: int, seed: int = 0, lengths=(80, 100, 120)) -> list[np.ndarray]:
   rng = np.random.default_rng(seed)
-  return [np.cumsum(rng.standard_normal((n, dim)), axis=0).astype(np.float32) * 0.01 for n in (80, 100, 120)]
+  return [np.cumsum(rng.standard_normal((n, dim)), axis=0).astype(np.float32) * 0.01 for n in lengths]
 
 
 def test_two_steps_change_only_the_decoder():
@@ -87,3 +87,94 @@ def test_load_vqs_prefers_the_fine_tuned_decoders(tmp_path):
     assert all(torch.equal(dec_t[k], dec_p[k] + 1.0) for k in dec_t if dec_t[k].is_floating_point())
     enc_t, enc_p = tuned[part].encoder.state_dict(), plain[part].encoder.state_dict()
     assert all(torch.equal(enc_t[k], enc_p[k]) for k in enc_t)
+
+
+def test_step_codes_undo_the_engines_frame_warp():
+  from training.train_vq_decoder import step_codes
+  rng = np.random.default_rng(3)
+  up = rng.integers(0, 5, 200)       # few codes: equal consecutive steps are common
+  low = rng.integers(0, 5, 200)
+  up[50:60], low[50:60] = 2, 3       # a held figure: ten equal steps in a row
+  frames = rng.choice([4, 5], 200, p=[0.7, 0.3])  # about 4 / 0.93 real frames per step, as the warp emits
+  fu, fl = np.repeat(up, frames), np.repeat(low, frames)
+  su, sl = step_codes(fu.tolist(), fl.tolist())
+  assert np.array_equal(su, up) and np.array_equal(sl, low)
+
+
+def _own_dances(tmp_path, n_codes: int, styles=("waltz", "rumba")):
+  import json
+  rng = np.random.default_rng(1)
+  for i, style in enumerate(styles):
+    codes = np.repeat(rng.integers(0, n_codes, 60), 4).tolist()
+    lower = np.repeat(rng.integers(0, n_codes, 60), 4).tolist()
+    (tmp_path / f"d{i}.json").write_text(json.dumps({"style": {style: 1.0}, "upper_codes": codes,
+                                                      "lower_codes": lower}))
+  return tmp_path
+
+
+def test_own_codes_term_moves_each_style_toward_its_real_energy(tmp_path):
+  from training.train_data import STYLES
+  from training.train_vq_decoder import OwnCodes, energy_eps, load_own_codes
+  vq = _tiny(45)
+  for p in vq.parameters():
+    p.requires_grad_(False)
+  for p in vq.decoder.parameters():
+    p.requires_grad_(True)
+  dances = load_own_codes(str(_own_dances(tmp_path, 16)), "upper")
+  assert sorted(s for s, _ in dances) == sorted([STYLES.index("waltz"), STYLES.index("rumba")])
+  assert all(len(c) == 60 for _, c in dances)
+  calm, wild = _arrays(45, 1), [a * 5 for a in _arrays(45, 2)]  # rumba's real motion 5x the waltz's
+  real = {STYLES.index("waltz"): calm, STYLES.index("rumba"): wild}
+  groups = channel_groups(45)
+  eps = energy_eps(calm + wild, groups, np.random.default_rng(0))
+  own = OwnCodes(vq, "upper", dances, real, groups, eps, steps=16, per_style=4, seed=0, real_windows=32,
+                 anchor=1.0)
+  opt = torch.optim.Adam(vq.decoder.parameters(), lr=3e-3)
+  first, _ = own.loss()
+  for _ in range(60):
+    loss, logs = own.loss()
+    opt.zero_grad()
+    loss.backward()
+    opt.step()
+  last = float(np.mean([float(own.loss()[0]) for _ in range(4)]))
+  assert np.isfinite(float(first)) and float(first) > 0
+  assert last < 0.5 * float(first), (float(first), last)
+  assert {"own", "anchor"} <= set(logs)
+
+
+def test_finetune_with_own_codes_changes_only_the_decoder(tmp_path, monkeypatch):
+  from training import train_vq_decoder as T
+  from training.train_data import STYLES
+  vq = _tiny(45)
+  frozen = {k: v.clone() for k, v in vq.state_dict().items() if not k.startswith("decoder.")}
+  long = (150, 200)  # at least one 32-step (128-frame) window per style
+  monkeypatch.setattr(T, "real_by_style", lambda part: {STYLES.index("waltz"): _arrays(45, 1, long),
+                                                        STYLES.index("rumba"): _arrays(45, 2, (90,))})
+  hist = T.finetune_decoder(vq, "upper", _arrays(45), iters=2, energy_weight=0.1, lr=1e-2, batch=4,
+                            log=lambda msg: None, log_every=1, own_dances=str(_own_dances(tmp_path, 16)),
+                            own_weight=1.0)
+  assert len(hist) == 2 and all(np.isfinite(h["own"]) and h["own"] > 0 for h in hist)
+  # rumba's real clips are all shorter than a window: only the waltz is matched
+  assert "own_mean_3" in hist[0] and "own_mean_1" not in hist[0]
+  after = vq.state_dict()
+  assert all(torch.equal(v, after[k]) for k, v in frozen.items())
+
+
+def test_load_vqs_takes_the_own_decoder_only_for_its_sequence_model(tmp_path):
+  from training.train import load_vqs, seq_digest
+  for part, dim in (("upper", 45), ("lower", 31)):
+    vq = _tiny(dim)
+    torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict()}, tmp_path / f"vq_{part}.pt")
+  (tmp_path / "seq.pt").write_bytes(b"sequence model A")
+  vq = _tiny(45)
+  with torch.no_grad():
+    for p in vq.decoder.parameters():
+      p.add_(1.0)
+  torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict(), "seq_sha256": seq_digest(tmp_path)},
+             tmp_path / "owndec_upper.pt")
+  key = next(k for k in vq.decoder.state_dict() if k.endswith("weight"))
+  plain = load_vqs(tmp_path)["upper"].decoder.state_dict()[key]
+  own = load_vqs(tmp_path, own=True)["upper"].decoder.state_dict()[key]
+  assert torch.equal(own, plain + 1.0)
+  (tmp_path / "seq.pt").write_bytes(b"sequence model B")  # retrained: the own decoder no longer fits
+  assert torch.equal(load_vqs(tmp_path, own=True)["upper"].decoder.state_dict()[key], plain)
