@@ -243,7 +243,7 @@ def real_by_style(part: str) -> dict[int, list[np.ndarray]]:
 def finetune_decoder(vq: PoseVQVAE, part: str, arrays: list[np.ndarray], iters: int, energy_weight: float,
                      lr: float = 1e-4, batch: int = 32, seed: int = 0, log=print,
                      log_every: int = 100, own_dances: str | None = None,
-                     own_weight: float = 0.0, own_anchor: float = 0.0) -> list[dict]:
+                     own_weight: float = 0.0, own_anchor: float = 0.0, own_steps: int = 32) -> list[dict]:
   """Fine-tunes vq.decoder in place (cosine decay to 0.1 lr, as train_vq); returns the loss history.
   With `own_dances` (a directory of the engine's dances on the training songs) and `own_weight` > 0, adds
   own_weight x OwnCodes.loss."""
@@ -255,7 +255,7 @@ def finetune_decoder(vq: PoseVQVAE, part: str, arrays: list[np.ndarray], iters: 
   own = None
   if own_dances and own_weight > 0:
     own = OwnCodes(vq, part, load_own_codes(own_dances, part), real_by_style(part), groups, eps, seed=seed + 2,
-                  anchor=own_anchor)
+                  anchor=own_anchor, steps=own_steps)
   opt = torch.optim.AdamW(params, lr=lr, weight_decay=0.0)
   history, t0, acc = [], time.time(), {}
   for it in tqdm(range(iters), desc=f"vqdec-{part}", mininterval=10):
@@ -296,6 +296,7 @@ def main(argv=None) -> int:
   ap.add_argument("--own-dances", default=None,
                   help="directory of the engine's dances on the training songs (OwnCodes; with --own-weight)")
   ap.add_argument("--own-weight", type=float, default=0.0)
+  ap.add_argument("--own-steps", type=int, default=32, help="model steps per own-codes window (4 frames each)")
   ap.add_argument("--own-anchor", type=float, default=0.0,
                   help="weight of the posture anchor inside the own-codes term (window mean pose as decoded before)")
   ap.add_argument("--out", required=True, help="directory for vq_upper.pt / vq_lower.pt")
@@ -312,7 +313,8 @@ def main(argv=None) -> int:
     vq = vqs[part]
     hist = finetune_decoder(vq, part, training_arrays(part, args.mirror), args.iters, args.energy_weight,
                             lr=args.lr, batch=args.batch, seed=args.seed, own_dances=args.own_dances,
-                            own_weight=args.own_weight, own_anchor=args.own_anchor)
+                            own_weight=args.own_weight, own_anchor=args.own_anchor,
+                            own_steps=args.own_steps)
     torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict(), "history": hist, "iter": args.iters,
                 "finetune": {k: v for k, v in vars(args).items()}}, out / f"vq_{part}.pt")
     print(f"vqdec-{part}: {args.iters} iterations in {time.time() - t0:.0f} s -> {out / f'vq_{part}.pt'}",
