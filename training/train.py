@@ -407,6 +407,8 @@ def main(argv=None) -> int:
       train_seq.stage_eval(args, vqs, run, log)
     if "export" in stages:
       train_seq.stage_export(args, vqs, run, log)
+    if "owndec" in stages and "export" not in stages:
+      log("owndec: skipped (it dances the model the export stage writes: run it with --stages export,owndec)")
     if "owndec" in stages and args.own_iters > 0 and args.tempo_ref > 0 and "export" in stages:
       report = run / "owndec_report.json"
       if not (report.is_file() and json.loads(report.read_text()).get("seq_sha256") == seq_digest(run)):

@@ -148,7 +148,10 @@ class OwnCodes:
   the same statistics of the real training dances of that style, in units of the real standard deviation.
   The decoder does not see the style; the term asks that, decoded from the codes the model actually samples
   (which jump further between steps than the real dances' encodings), each style's motion has its real
-  energy, on average and in spread."""
+  energy, on average and in spread. An approximation: the codes are in the model's tempo-normalised time
+  and the real dances in their own, so a song far from its style's reference tempo is matched to motion a
+  little faster or slower than its own (energy scales with the tempo factor squared; the training songs'
+  factors spread around 1)."""
 
   def __init__(self, vq: PoseVQVAE, part: str, dances: list[tuple[int, np.ndarray]],
                real: dict[int, list[np.ndarray]], groups, eps, steps: int = 32, per_style: int = 8,
@@ -225,9 +228,15 @@ def load_own_codes(directory: str, part: str) -> list[tuple[int, np.ndarray]]:
   out = []
   for p in sorted(pathlib.Path(directory).glob("*.json")):
     d = json.loads(p.read_text())
+    if not d.get("style") or not d.get("upper_codes") or not d.get("lower_codes"):
+      raise ValueError(f"{p}: not a dance-generate file with a style and per-frame codes")
     style = max(d["style"].items(), key=lambda kv: kv[1])[0]
+    if style not in STYLES:
+      raise ValueError(f"{p}: style '{style}' is not one of {STYLES}")
     up, low = step_codes(d["upper_codes"], d["lower_codes"])
     out.append((STYLES.index(style), up if part == "upper" else low))
+  if not out:
+    raise ValueError(f"no dance files (*.json) in {directory}")
   return out
 
 

@@ -123,6 +123,15 @@ def test_own_codes_term_moves_each_style_toward_its_real_energy(tmp_path):
   dances = load_own_codes(str(_own_dances(tmp_path, 16)), "upper")
   assert sorted(s for s, _ in dances) == sorted([STYLES.index("waltz"), STYLES.index("rumba")])
   assert all(len(c) == 60 for _, c in dances)
+  import json
+  import pytest
+  empty = tmp_path / "empty"
+  empty.mkdir()
+  with pytest.raises(ValueError, match="no dance files"):
+    load_own_codes(str(empty), "upper")
+  (empty / "x.json").write_text(json.dumps({"style": {"foxtrot": 1.0}, "upper_codes": [1], "lower_codes": [1]}))
+  with pytest.raises(ValueError, match="foxtrot"):
+    load_own_codes(str(empty), "upper")
   calm, wild = _arrays(45, 1), [a * 5 for a in _arrays(45, 2)]  # rumba's real motion 5x the waltz's
   real = {STYLES.index("waltz"): calm, STYLES.index("rumba"): wild}
   groups = channel_groups(45)
