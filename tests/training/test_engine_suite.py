@@ -111,3 +111,13 @@ def test_engine_eval_refuses_a_bad_song_subset_before_generating(tmp_path):
   assert not (tmp_path / "out").exists()
   with pytest.raises(SystemExit):
     es.main(["--model", "m.dncw", "--out-dir", str(tmp_path / "out"), "--songs", "tang_DANCE_C_6"])
+
+
+def test_markdown_of_a_single_tempo_run_says_what_it_cannot_estimate(tmp_path):
+  # One run: no bootstrap s.e.; no pooled rows and no calibration either.
+  (tmp_path / "tempo_0.json").write_text(json.dumps(
+      {"seeds": [0], "rows": [{"id": "a", "seed": 0, "ratio": 0.9}], "pooled_rows": []}))
+  t = es.summarize(tmp_path)["tempo"]
+  assert t["mean_ratio_se"] is None and t["perfect_follower_mean_ratio"] is None and t["pooled_mean_ratio"] is None
+  md = es.markdown({"draws": {}, "tempo": t}, "m")
+  assert "**0.900** (s.e. n/a)" in md and "seeds pooled n/a" in md and "spread n/a" in md

@@ -168,12 +168,14 @@ def markdown(summary: dict, model: str) -> str:
     lines += ["", f"Div_k and Div_g within 20 % of real on every draw: {summary['div_inside_20pct']}", ""]
   t = summary.get("tempo")
   if t:
-    se = t["mean_ratio_se"]
+    def num(x) -> str:  # None: too few runs for it (one run has no s.e.; no pooled or calibration rows)
+      return "n/a" if x is None else f"{x:.3f}"
     filled = f"; songs it did not run from {t['filled_from']}" if t.get("filled_from") else ""
     lines += [f"Tempo following over {len(t.get('songs', []))} songs, {len(t['seeds'])} seeds ({t['finite_runs']}/"
               f"{t['runs']} runs{filled}): per run mean "
-              f"**{t['mean_ratio']:.3f}** (s.e. {se:.3f}), median {t['median_ratio']:.3f}; seeds pooled "
-              f"{t['pooled_mean_ratio']:.3f}; ideal follower with this spread {t['perfect_follower_mean_ratio']:.3f}",
+              f"**{num(t['mean_ratio'])}** (s.e. {num(t['mean_ratio_se'])}), median {num(t['median_ratio'])}; seeds "
+              f"pooled {num(t['pooled_mean_ratio'])}; ideal follower with this spread "
+              f"{num(t['perfect_follower_mean_ratio'])}",
               "", "| song | per run | pooled |", "|---|---|---|"]
     for m, v in t["per_song"].items():
       lines.append(f"| {m} | {v:.3f} | {t['pooled_per_song'].get(m, float('nan')):.3f} |")
