@@ -114,6 +114,15 @@ def seq_digest(run: pathlib.Path) -> str | None:
   return hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None
 
 
+def owndec_current(run: pathlib.Path) -> dict | None:
+  """<run>/owndec_report.json when it was written for the run's current sequence model, else None."""
+  path = run / "owndec_report.json"
+  if not path.is_file():
+    return None
+  report = json.loads(path.read_text())
+  return report if report.get("seq_sha256") == seq_digest(run) else None
+
+
 def own_decoder(vqs: dict, run: pathlib.Path) -> dict:
   """vqs with the upper decoder of <run>/owndec_upper.pt when that file exists and was fine-tuned on the
   codes of the run's current sequence model; otherwise vqs unchanged."""
@@ -410,8 +419,7 @@ def main(argv=None) -> int:
     if "owndec" in stages and "export" not in stages:
       log("owndec: skipped (it dances the model the export stage writes: run it with --stages export,owndec)")
     if "owndec" in stages and args.own_iters > 0 and args.tempo_ref > 0 and "export" in stages:
-      report = run / "owndec_report.json"
-      if not (report.is_file() and json.loads(report.read_text()).get("seq_sha256") == seq_digest(run)):
+      if owndec_current(run) is None:
         vqs = stage_owndec(args, base_vqs, run, log)
         train_seq.stage_export(args, vqs, run, log)
     if "eval" in stages and args.tempo_ref > 0:

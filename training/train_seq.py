@@ -362,14 +362,13 @@ def stage_export(args, vqs, run: pathlib.Path, log) -> None:
            "skeleton": skeleton_meta(), "styles": td.STYLES, "training": {"run": str(run)},
            "time_base": time_base_meta(args, run, log)}
   extra["sampling"] = {"guidance": float(getattr(args, "guidance", 1.0))}
-  for name in ("vq_report.json", "vqdec_report.json", "owndec_report.json", "eval_report.json"):
+  for name in ("vq_report.json", "vqdec_report.json", "eval_report.json"):
     if (run / name).is_file():
-      report = json.loads((run / name).read_text())
-      if name == "owndec_report.json":
-        from training.train import seq_digest
-        if report.get("seq_sha256") != seq_digest(run):
-          continue  # fitted to an earlier sequence model: not in this export
-      extra["training"][name.removesuffix(".json")] = report
+      extra["training"][name.removesuffix(".json")] = json.loads((run / name).read_text())
+  from training.train import owndec_current
+  own = owndec_current(run)  # only when fitted to this sequence model
+  if own is not None:
+    extra["training"]["owndec_report"] = own
   export_model(str(out), model, vqs, extra, weights_dtype=args.weights_dtype)
   log(f"export: {out} ({out.stat().st_size / 1e6:.1f} MB)")
   if out.parent.resolve() == (td.REPO / "models").resolve():
