@@ -114,23 +114,48 @@ def seq_digest(run: pathlib.Path) -> str | None:
   return hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None
 
 
-def owndec_current(run: pathlib.Path) -> dict | None:
-  """<run>/owndec_report.json when it was written for the run's current sequence model, else None."""
+def owndec_dance_settings(args, run: pathlib.Path) -> dict:
+  """What the owndec stage's engine dances depend on besides the sequence model: the exported file's
+  time_base and sampling metadata (period lock, style tempi, guidance) and the seeds."""
+  from training.train_seq import time_base_meta
+  return {"time_base": time_base_meta(args, run, lambda *_: None),
+          "sampling": {"guidance": float(getattr(args, "guidance", 1.0))},
+          "seeds": [int(s) for s in args.own_seeds]}
+
+
+def owndec_settings(args, run: pathlib.Path) -> dict:
+  """What the owndec stage's decoder depends on besides the sequence model: its dances' settings and the
+  fine-tuning's own."""
+  return dict(owndec_dance_settings(args, run), iters=args.own_iters, own_weight=args.own_weight,
+              own_anchor=args.own_anchor, energy_weight=args.vq_energy_weight["upper"], lr=args.vq_dec_lr)
+
+
+def _owndec_fits(saved: dict, run: pathlib.Path, args) -> bool:
+  """A saved owndec report or checkpoint was made for the run's sequence model and, when args are given,
+  with the same settings (owndec_settings): a change of the sampling metadata or of --own-* redoes it."""
+  if saved.get("seq_sha256") != seq_digest(run):
+    return False
+  return args is None or saved.get("settings") == json.loads(json.dumps(owndec_settings(args, run)))
+
+
+def owndec_current(run: pathlib.Path, args=None) -> dict | None:
+  """<run>/owndec_report.json when it was written for the run's current sequence model (and, with args, the
+  current settings: _owndec_fits), else None."""
   path = run / "owndec_report.json"
   if not path.is_file():
     return None
   report = json.loads(path.read_text())
-  return report if report.get("seq_sha256") == seq_digest(run) else None
+  return report if _owndec_fits(report, run, args) else None
 
 
-def own_decoder(vqs: dict, run: pathlib.Path) -> dict:
+def own_decoder(vqs: dict, run: pathlib.Path, args=None) -> dict:
   """vqs with the upper decoder of <run>/owndec_upper.pt when that file exists and was fine-tuned on the
-  codes of the run's current sequence model; otherwise vqs unchanged."""
+  codes of the run's current sequence model (with args: and the current settings); otherwise vqs unchanged."""
   path = run / "owndec_upper.pt"
   if not path.is_file():
     return vqs
   ck = torch.load(path)
-  if ck.get("seq_sha256") != seq_digest(run):
+  if not _owndec_fits(ck, run, args):
     return vqs
   import copy
   out = dict(vqs)
@@ -159,11 +184,12 @@ def stage_owndec(args, vqs: dict, run: pathlib.Path, log: Logger) -> dict:
                      "DANCE_BUILD_DIR")
   digest = seq_digest(run)
   dances = run / "own_dances"
-  stamp = dances / "seq_sha256"
-  if dances.is_dir() and (not stamp.is_file() or stamp.read_text() != str(digest)):
-    shutil.rmtree(dances)  # danced by another sequence model
+  stamp = dances / "settings.json"
+  key = json.dumps({"seq_sha256": digest, **owndec_dance_settings(args, run)}, sort_keys=True)
+  if dances.is_dir() and (not stamp.is_file() or stamp.read_text() != key):
+    shutil.rmtree(dances)  # danced by another sequence model or with other sampling settings
   dances.mkdir(parents=True, exist_ok=True)
-  stamp.write_text(str(digest))
+  stamp.write_text(key)
   ids = [i for i in td.paired_ids(td.load_split()["train"]) if i.startswith("tang_")]
   t0 = time.time()
   for seed in args.own_seeds:
@@ -184,13 +210,15 @@ def stage_owndec(args, vqs: dict, run: pathlib.Path, log: Logger) -> dict:
               "energy_weight": args.vq_energy_weight["upper"], "lr": args.vq_dec_lr, "seeds": args.own_seeds}
   path = run / "owndec_upper.pt"
   tmp = path.with_suffix(".tmp")
+  full = json.loads(json.dumps(owndec_settings(args, run)))
   torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict(), "history": hist, "iter": args.own_iters,
-              "finetune": settings, "seq_sha256": digest}, tmp)
+              "finetune": settings, "seq_sha256": digest, "settings": full}, tmp)
   os.replace(tmp, path)
   log(f"owndec-upper: {args.own_iters} iterations in {time.time() - t0:.0f} s -> {path}")
   new = dict(vqs, upper=vq)
   val = [td.load_clip(i, with_music=False) for i in td.load_split()["validation"]]
-  report = dict(validation_report(new, val), **settings, seq_sha256=digest, last=hist[-1] if hist else None)
+  report = dict(validation_report(new, val), **settings, seq_sha256=digest, settings=full,
+                last=hist[-1] if hist else None)
   log(f"owndec validation: {json.dumps(report)}")
   (run / "owndec_report.json").write_text(json.dumps(report, indent=1))
   return new
@@ -305,6 +333,9 @@ def main(argv=None) -> int:
   ap.add_argument("--n-head", type=int, default=2)
   ap.add_argument("--lookahead", type=int, default=0, help="0 anticipatory, 1 reactive")
   ap.add_argument("--code-mask", type=float, default=0.4, help="past-motion dropout rate")
+  ap.add_argument("--style-balance", type=float, default=1.0,
+                  help="sequence model: each style's share of the training windows goes as (its windows) ** B "
+                       "(train_seq.window_probs): 1 = the data's shares (waltz ~58 %%, tango ~4 %%), 0 = equal")
   ap.add_argument("--dropout", type=float, default=0.0,
                   help="sequence model: dropout on every residual branch's output, training only (not in the "
                        "weights file; the engine and eval mode never drop)")
@@ -373,6 +404,8 @@ def main(argv=None) -> int:
   for name in ("own_iters", "own_weight", "own_anchor"):
     if getattr(args, name) < 0:
       ap.error(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
+  if not 0.0 <= args.style_balance <= 1.0:
+    ap.error(f"--style-balance must be in [0, 1], got {args.style_balance}")
   torch.set_num_threads(args.threads)
   os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
   run = pathlib.Path(args.run)
@@ -409,7 +442,7 @@ def main(argv=None) -> int:
       args.lr = args.finetune_lr
     if "seq" in stages:
       train_seq.stage_seq(args, cfg, vqs, factors, run, log)
-    base_vqs, vqs = vqs, own_decoder(vqs, run)  # the owndec stage's upper decoder if it fits this seq.pt
+    base_vqs, vqs = vqs, own_decoder(vqs, run, args)  # the owndec stage's decoder if it fits seq.pt and settings
     # Fixed-rate models are evaluated from the checkpoint (torch generator) and the report goes into the
     # export; tempo-normalised ones are evaluated from the exported file by the engine.
     if "eval" in stages and args.tempo_ref <= 0:
@@ -419,7 +452,7 @@ def main(argv=None) -> int:
     if "owndec" in stages and "export" not in stages:
       log("owndec: skipped (it dances the model the export stage writes: run it with --stages export,owndec)")
     if "owndec" in stages and args.own_iters > 0 and args.tempo_ref > 0 and "export" in stages:
-      if owndec_current(run) is None:
+      if owndec_current(run, args) is None:
         vqs = stage_owndec(args, base_vqs, run, log)
         train_seq.stage_export(args, vqs, run, log)
     if "eval" in stages and args.tempo_ref > 0:

@@ -72,14 +72,31 @@ def build_tokens(ids, factors, vqs, log, cache: pathlib.Path | None = None,
   return toks
 
 
+def window_probs(toks, ok, steps: int, style_balance: float = 1.0) -> np.ndarray:
+  """How often each usable clip (indices `ok`) is drawn: in proportion to its number of window starts, with
+  each style's total share then set in proportion to (its windows) ** style_balance. 1 keeps the data's
+  shares (waltz ~58 % of the Tang training steps, tango ~4 %); 0 gives every style the same share; 0.5 is
+  in between. Within a style the clips keep their relative weights."""
+  lens = np.array([len(toks[j]["upper"]) for j in ok], np.float64) - steps
+  probs = lens / lens.sum()
+  if style_balance != 1.0:
+    styles = np.array([toks[j]["style"] for j in ok])
+    for st in np.unique(styles):
+      share = probs[styles == st].sum()
+      probs[styles == st] *= share ** style_balance / share
+    probs /= probs.sum()
+  return probs
+
+
 def make_batch(toks, cfg: SeqConfig, rng, batch=BATCH, steps=STEPS, code_mask=0.0, style_dropout=0.0,
-               music_from=None):
+               music_from=None, style_balance: float = 1.0):
   """Random windows. Inputs: codes of periods t0..t0+L-1 (BOS at the song start), music of t+s.
-  music_from: optional list of clips to take the music from instead (music-ablation)."""
+  music_from: optional list of clips to take the music from instead (music-ablation); style_balance:
+  window_probs."""
   s, k = cfg.music_lookahead_steps, cfg.codebook_size
   lens = np.array([len(t["upper"]) for t in toks])
   ok = np.flatnonzero(lens > steps + s + 1)
-  probs = (lens[ok] - steps) / (lens[ok] - steps).sum()
+  probs = window_probs(toks, ok, steps, style_balance)
   mus, pres, us, ls, tu, tl, sw = [], [], [], [], [], [], []
   for j in rng.choice(ok, batch, p=probs):
     t = toks[j]
@@ -260,7 +277,8 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
     for g in opt.param_groups:
       g["lr"] = lr0 * warm * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * it / iters)))
     inputs, targets = make_batch(train_toks, cfg, rng, batch=args.batch, code_mask=args.code_mask,
-                                 style_dropout=STYLE_DROPOUT)
+                                 style_dropout=STYLE_DROPOUT,
+                                 style_balance=float(getattr(args, "style_balance", 1.0)))
     loss = loss_of(model, inputs, targets)
     opt.zero_grad()
     loss.backward()
@@ -366,7 +384,7 @@ def stage_export(args, vqs, run: pathlib.Path, log) -> None:
     if (run / name).is_file():
       extra["training"][name.removesuffix(".json")] = json.loads((run / name).read_text())
   from training.train import owndec_current
-  own = owndec_current(run)  # only when fitted to this sequence model
+  own = owndec_current(run, args)  # only when fitted to this sequence model with these settings
   if own is not None:
     extra["training"]["owndec_report"] = own
   export_model(str(out), model, vqs, extra, weights_dtype=args.weights_dtype)

@@ -153,7 +153,7 @@ class OwnCodes:
   little faster or slower than its own (energy scales with the tempo factor squared; the training songs'
   factors spread around 1)."""
 
-  def __init__(self, vq: PoseVQVAE, part: str, dances: list[tuple[int, np.ndarray]],
+  def __init__(self, vq: PoseVQVAE, dances: list[tuple[int, np.ndarray]],
                real: dict[int, list[np.ndarray]], groups, eps, steps: int = 32, per_style: int = 8,
                seed: int = 0, real_windows: int = 512, anchor: float = 0.0):
     import copy
@@ -263,7 +263,7 @@ def finetune_decoder(vq: PoseVQVAE, part: str, arrays: list[np.ndarray], iters: 
   eps = energy_eps(arrays, groups, np.random.default_rng(seed + 1))
   own = None
   if own_dances and own_weight > 0:
-    own = OwnCodes(vq, part, load_own_codes(own_dances, part), real_by_style(part), groups, eps, seed=seed + 2,
+    own = OwnCodes(vq, load_own_codes(own_dances, part), real_by_style(part), groups, eps, seed=seed + 2,
                   anchor=own_anchor, steps=own_steps)
   opt = torch.optim.AdamW(params, lr=lr, weight_decay=0.0)
   history, t0, acc = [], time.time(), {}

@@ -297,3 +297,17 @@ def test_style_probe_tells_raised_arms_from_a_hold():
   assert flipped.predict(xt) == ["waltz", "waltz", "cha-cha", "cha-cha"]
   with pytest.raises(ValueError):
     style_probe.StyleProbe(x, ["waltz"] * len(y))
+
+
+def test_style_reach_is_one_for_the_reference_and_zero_for_a_blend():
+  from training.eval.fid_parts import style_reach
+  rng = np.random.default_rng(0)
+  ref = np.concatenate([rng.normal(2.0, 0.3, (20, 4)), rng.normal(-1.0, 0.3, (40, 4))])
+  rows = [{"dance": "tang_DANCE_C_1"}] * 20 + [{"dance": "tang_DANCE_W_1"}] * 40
+  assert style_reach(ref, rows, ref, rows) == pytest.approx({"C": 1.0, "W": 1.0})
+  blend = np.repeat(ref.mean(0, keepdims=True), 60, axis=0)  # every style danced as the average dance
+  assert style_reach(ref, rows, blend, rows) == pytest.approx({"C": 0.0, "W": 0.0}, abs=1e-9)
+  # a cha-cha halfway to the average; a style the reference lacks is not scored
+  half = np.concatenate([ref[:20] * 0.5 + ref.mean(0) * 0.5, rng.normal(0, 1, (5, 4))])
+  got = style_reach(ref, rows, half, rows[:20] + [{"dance": "tang_DANCE_X_1"}] * 5)
+  assert got == pytest.approx({"C": 0.5})

@@ -4,7 +4,7 @@ import torch
 
 from training.model import SeqConfig, VQConfig
 from training.model.danceba import Danceba
-from training.train_seq import loss_of, make_batch, validation
+from training.train_seq import loss_of, make_batch, validation, window_probs
 from training.train_vq import integrate_root_torch, train_vq
 
 
@@ -49,6 +49,28 @@ def test_batch_targets_are_next_period_codes():
   u, tu = inputs[2], targets[0]
   ok = u < 16
   assert torch.equal(tu[ok], (u[ok] + 1) % 16)
+
+
+def test_style_balance_sets_each_styles_share_of_the_windows():
+  # Style 0: three clips of 110 window starts; style 1: one clip of 30 (the data's shares 11 : 1).
+  toks = [{"style": 0, "upper": np.zeros(126)} for _ in range(3)] + [{"style": 1, "upper": np.zeros(46)}]
+  ok = np.arange(4)
+  data = window_probs(toks, ok, steps=16)
+  assert np.allclose(data, [110 / 360] * 3 + [30 / 360])
+  equal = window_probs(toks, ok, steps=16, style_balance=0.0)
+  assert np.allclose(equal, [1 / 6] * 3 + [0.5])
+  half = window_probs(toks, ok, steps=16, style_balance=0.5)
+  assert np.isclose(half[3] / half[:3].sum(), np.sqrt(30 / 330))
+  assert np.allclose(half[:3], half[0])  # within a style the clips keep their relative weights
+  # make_batch draws the balanced shares (style 1 is the last clip, its own style in the weights).
+  cfg = SeqConfig(feature_dim=5, pre_dim=8, codebook_size=16, n_styles=2)
+  clips = _tokens(n_clips=4, n=126)
+  for c, st in zip(clips, (0, 0, 0, 1)):
+    c["style"] = st
+  clips[3] = {k: (v[:46] if isinstance(v, np.ndarray) else v) for k, v in clips[3].items()}
+  drawn = [make_batch(clips, cfg, np.random.default_rng(i), batch=64, steps=16, style_balance=b)[0][4][:, 1]
+           for i, b in ((0, 1.0), (1, 0.0))]
+  assert abs(float(drawn[0].mean()) - 30 / 360) < 0.06 and abs(float(drawn[1].mean()) - 0.5) < 0.15
 
 
 def test_vq_two_steps_and_resume(tmp_path):
@@ -166,7 +188,7 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
     assert e.value.code == 2
   # The owndec stage's seeds and weights.
   for flag, bad in (("--own-seeds", "1,x"), ("--own-seeds", ""), ("--own-weight", "-1"), ("--own-anchor", "-0.5"),
-                    ("--own-iters", "-3")):
+                    ("--own-iters", "-3"), ("--style-balance", "-0.1"), ("--style-balance", "1.5")):
     with pytest.raises(SystemExit) as e:
       train.main(["--run", str(tmp_path / "never"), flag, bad])
     assert e.value.code == 2

@@ -136,7 +136,7 @@ def test_own_codes_term_moves_each_style_toward_its_real_energy(tmp_path):
   real = {STYLES.index("waltz"): calm, STYLES.index("rumba"): wild}
   groups = channel_groups(45)
   eps = energy_eps(calm + wild, groups, np.random.default_rng(0))
-  own = OwnCodes(vq, "upper", dances, real, groups, eps, steps=16, per_style=4, seed=0, real_windows=32,
+  own = OwnCodes(vq, dances, real, groups, eps, steps=16, per_style=4, seed=0, real_windows=32,
                  anchor=1.0)
   opt = torch.optim.Adam(vq.decoder.parameters(), lr=3e-3)
   first, _ = own.loss()
@@ -187,3 +187,26 @@ def test_load_vqs_takes_the_own_decoder_only_for_its_sequence_model(tmp_path):
   assert torch.equal(own, plain + 1.0)
   (tmp_path / "seq.pt").write_bytes(b"sequence model B")  # retrained: the own decoder no longer fits
   assert torch.equal(load_vqs(tmp_path, own=True)["upper"].decoder.state_dict()[key], plain)
+
+
+def test_own_decoder_is_redone_when_its_settings_change(tmp_path):
+  import argparse
+  import json
+
+  from training import train
+  (tmp_path / "seq.pt").write_bytes(b"sequence model A")
+  (tmp_path / "style_reference_bpm.json").write_text(json.dumps({"waltz": 87.0}))
+  (tmp_path / "dance_period_beats.json").write_text(json.dumps({"waltz": 3}))
+  args = argparse.Namespace(tempo_ref=105.0, period_lock=8.0, period_lock_periods=[1, 2], bar_clock=False,
+                            style_period_lock={"waltz": 0.0}, period_lock_sharpness=10.0, guidance=3.0,
+                            own_seeds=[10, 11], own_iters=1000, own_weight=1.0, own_anchor=100.0,
+                            vq_energy_weight={"upper": 0.1, "lower": 0.3}, vq_dec_lr=1e-4)
+  report = {"seq_sha256": train.seq_digest(tmp_path), "settings": train.owndec_settings(args, tmp_path)}
+  (tmp_path / "owndec_report.json").write_text(json.dumps(report))
+  assert train.owndec_current(tmp_path, args) is not None
+  assert train.owndec_current(tmp_path) is not None  # without args: the sequence model alone
+  for name, value in (("guidance", 2.0), ("period_lock", 4.0), ("own_seeds", [10]), ("own_weight", 0.3)):
+    changed = argparse.Namespace(**dict(vars(args), **{name: value}))
+    assert train.owndec_current(tmp_path, changed) is None, name
+  (tmp_path / "seq.pt").write_bytes(b"sequence model B")
+  assert train.owndec_current(tmp_path, args) is None and train.owndec_current(tmp_path) is None

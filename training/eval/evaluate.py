@@ -155,6 +155,7 @@ class Evaluator:
     self.norm_k = metrics.FeatureStats.fit(val["kinetic"])
     # Geometric features are fractions of a segment: no dimension counts as varying less than 5 %.
     self.norm_g = metrics.FeatureStats.fit(val["geometric"], floor=0.05)
+    self.ref_rows = ref["rows"]  # which dance each reference segment is from
     self.ref_k = self.norm_k.apply(ref["kinetic"])
     self.ref_g = self.norm_g.apply(ref["geometric"])
 

@@ -1,6 +1,7 @@
 """Where a FID_k comes from: the mean and covariance terms of the kinetic Frechet distance, the kinetic
-dimensions whose averages differ most from the real training dances', and per style the horizontal kinetic
-energy of the torso and wrists and the turn rate, for dance sets beside the real validation dances.
+dimensions whose averages differ most from the real training dances', per style the horizontal kinetic
+energy of the torso and wrists and the turn rate, and per style its reach (style_reach), for dance sets
+beside the real validation dances.
 
     /usr/bin/python3 -m training.eval.fid_parts D/s0/dances [D/s1/dances ...] [--top 12]
 
@@ -44,6 +45,22 @@ def per_style(table: dict) -> dict[str, dict]:
           for s, v in sorted(out.items())}
 
 
+def style_reach(ref: np.ndarray, ref_rows: list, x: np.ndarray, rows: list) -> dict[str, float]:
+  """How far each style's mean kinetic features go along the real style's own direction: the projection of
+  (style mean of x - the reference's mean) on (the reference's style mean - its mean), divided by that
+  direction's squared length. 1 = as distinct as the real training dances of the style, 0 = the average
+  dance (all styles blended), above 1 = overdone. Normalised features (the evaluator's)."""
+  def styles(rows_):
+    return np.array([style_of(r["dance"]) for r in rows_])
+  rs, xs = styles(ref_rows), styles(rows)
+  mean = ref.mean(0)
+  out = {}
+  for st in sorted(set(xs) & set(rs)):
+    direction = ref[rs == st].mean(0) - mean
+    out[st] = float(np.dot(x[xs == st].mean(0) - mean, direction) / np.dot(direction, direction))
+  return out
+
+
 def main(argv=None) -> None:
   ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
   ap.add_argument("dirs", nargs="+", help="directories of dance JSON files")
@@ -77,6 +94,11 @@ def main(argv=None) -> None:
   print("spread generated / real train, mean over joints: " +
         ", ".join(f"{kind} {r:.2f}" for kind, r in zip(KINDS, ratio)))
   gen = {"kinetic": np.concatenate(raw), "rows": rows}
+  reach_val = style_reach(ev.ref_k, ev.ref_rows, vk, val["rows"])
+  reach_gen = style_reach(ev.ref_k, ev.ref_rows, k, rows)
+  print("\nstyle reach (kinetic; 1 = as distinct as the real training dances of the style, 0 = blended): " +
+        ", ".join(f"{st} {reach_gen[st]:.2f} (real validation {reach_val.get(st, float('nan')):.2f})"
+                  for st in reach_gen))
   print(f"\nper style: horizontal kinetic energy (m^2/s^2) of {', '.join(STYLE_JOINTS)}; turn rate (rad/s)")
   for label, table in (("real", val), ("generated", gen)):
     for style, v in per_style(table).items():
