@@ -165,6 +165,21 @@ def own_decoder(vqs: dict, run: pathlib.Path, args=None) -> dict:
   return out
 
 
+def own_dances_dir(args, run: pathlib.Path) -> pathlib.Path:
+  """<run>/own_dances/, emptied first when its dances were made by another sequence model or with other
+  settings (owndec_dance_settings); stamped with the current ones in settings.key (not *.json:
+  train_vq_decoder.load_own_codes reads every JSON file there as a dance)."""
+  import shutil
+  dances = run / "own_dances"
+  stamp = dances / "settings.key"
+  key = json.dumps({"seq_sha256": seq_digest(run), **owndec_dance_settings(args, run)}, sort_keys=True)
+  if dances.is_dir() and (not stamp.is_file() or stamp.read_text() != key):
+    shutil.rmtree(dances)
+  dances.mkdir(parents=True, exist_ok=True)
+  stamp.write_text(key)
+  return dances
+
+
 def stage_owndec(args, vqs: dict, run: pathlib.Path, log: Logger) -> dict:
   """The upper-body decoder fine-tuned on the sequence model's own codes (training.train_vq_decoder.OwnCodes):
   the exported model (args.out) dances every Tang training song in its own style through the engine
@@ -173,7 +188,6 @@ def stage_owndec(args, vqs: dict, run: pathlib.Path, log: Logger) -> dict:
   Writes <run>/owndec_upper.pt and owndec_report.json, both keyed to the sequence model (seq_digest); returns
   vqs with the new upper decoder (the caller exports again)."""
   import copy
-  import shutil
 
   from training.eval.engine_eval import generate_song
   from training.eval.engine_tempo import dance_generate_bin
@@ -183,13 +197,7 @@ def stage_owndec(args, vqs: dict, run: pathlib.Path, log: Logger) -> dict:
     raise SystemExit(f"owndec: {dance_generate_bin()} not found: build the engine (cmake --build build) or set "
                      "DANCE_BUILD_DIR")
   digest = seq_digest(run)
-  dances = run / "own_dances"
-  stamp = dances / "settings.json"
-  key = json.dumps({"seq_sha256": digest, **owndec_dance_settings(args, run)}, sort_keys=True)
-  if dances.is_dir() and (not stamp.is_file() or stamp.read_text() != key):
-    shutil.rmtree(dances)  # danced by another sequence model or with other sampling settings
-  dances.mkdir(parents=True, exist_ok=True)
-  stamp.write_text(key)
+  dances = own_dances_dir(args, run)
   ids = [i for i in td.paired_ids(td.load_split()["train"]) if i.startswith("tang_")]
   t0 = time.time()
   for seed in args.own_seeds:

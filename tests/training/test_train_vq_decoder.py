@@ -210,3 +210,13 @@ def test_own_decoder_is_redone_when_its_settings_change(tmp_path):
     assert train.owndec_current(tmp_path, changed) is None, name
   (tmp_path / "seq.pt").write_bytes(b"sequence model B")
   assert train.owndec_current(tmp_path, args) is None and train.owndec_current(tmp_path) is None
+  # The dances' directory: stamped beside the dances (which load_own_codes still reads), emptied when the
+  # sampling settings change, kept when only the fine-tuning's do.
+  from training.train_vq_decoder import load_own_codes
+  dances = train.own_dances_dir(args, tmp_path)
+  _own_dances(dances, 16)
+  assert len(load_own_codes(str(train.own_dances_dir(args, tmp_path)), "upper")) == 2
+  assert len(load_own_codes(str(train.own_dances_dir(argparse.Namespace(**dict(vars(args), own_weight=0.3)),
+                                                     tmp_path)), "upper")) == 2
+  train.own_dances_dir(argparse.Namespace(**dict(vars(args), guidance=2.0)), tmp_path)
+  assert not list(dances.glob("*.json"))
