@@ -341,7 +341,7 @@ def main(argv=None) -> int:
   ap.add_argument("--n-head", type=int, default=2)
   ap.add_argument("--lookahead", type=int, default=0, help="0 anticipatory, 1 reactive")
   ap.add_argument("--code-mask", type=float, default=0.4, help="past-motion dropout rate")
-  ap.add_argument("--style-balance", type=float, default=1.0,
+  ap.add_argument("--style-balance", type=float, default=0.5,
                   help="sequence model: each style's share of the training windows goes as (its windows) ** B "
                        "(train_seq.window_probs): 1 = the data's shares (waltz ~58 %%, tango ~4 %%), 0 = equal")
   ap.add_argument("--dropout", type=float, default=0.0,
