@@ -123,11 +123,17 @@ def owndec_dance_settings(args, run: pathlib.Path) -> dict:
           "seeds": [int(s) for s in args.own_seeds]}
 
 
+def owndec_finetune_settings(args) -> dict:
+  """The owndec stage's fine-tuning options (recorded in its checkpoint and report)."""
+  return {"iters": args.own_iters, "own_weight": args.own_weight, "own_anchor": args.own_anchor,
+          "energy_weight": args.vq_energy_weight["upper"], "lr": args.vq_dec_lr,
+          "seeds": [int(s) for s in args.own_seeds]}
+
+
 def owndec_settings(args, run: pathlib.Path) -> dict:
   """What the owndec stage's decoder depends on besides the sequence model: its dances' settings and the
   fine-tuning's own."""
-  return dict(owndec_dance_settings(args, run), iters=args.own_iters, own_weight=args.own_weight,
-              own_anchor=args.own_anchor, energy_weight=args.vq_energy_weight["upper"], lr=args.vq_dec_lr)
+  return dict(owndec_dance_settings(args, run), **owndec_finetune_settings(args))
 
 
 def _owndec_fits(saved: dict, run: pathlib.Path, args) -> bool:
@@ -214,8 +220,7 @@ def stage_owndec(args, vqs: dict, run: pathlib.Path, log: Logger) -> dict:
   hist = finetune_decoder(vq, "upper", training_arrays("upper", args.vq_mirror), args.own_iters,
                           args.vq_energy_weight["upper"], lr=args.vq_dec_lr, log=log, own_dances=str(dances),
                           own_weight=args.own_weight, own_anchor=args.own_anchor)
-  settings = {"iters": args.own_iters, "own_weight": args.own_weight, "own_anchor": args.own_anchor,
-              "energy_weight": args.vq_energy_weight["upper"], "lr": args.vq_dec_lr, "seeds": args.own_seeds}
+  settings = owndec_finetune_settings(args)
   path = run / "owndec_upper.pt"
   tmp = path.with_suffix(".tmp")
   full = json.loads(json.dumps(owndec_settings(args, run)))
