@@ -121,3 +121,27 @@ def test_markdown_of_a_single_tempo_run_says_what_it_cannot_estimate(tmp_path):
   assert t["mean_ratio_se"] is None and t["perfect_follower_mean_ratio"] is None and t["pooled_mean_ratio"] is None
   md = es.markdown({"draws": {}, "tempo": t}, "m")
   assert "**0.900** (s.e. n/a)" in md and "seeds pooled n/a" in md and "spread n/a" in md
+
+
+def test_suite_prepares_a_missing_motion_cache_once_before_the_draws(tmp_path, monkeypatch):
+  # A fresh checkout has no training/cache/motion; every draw needs it (audio paths, styles). The suite must
+  # make it once, before the parallel draws start (which would otherwise each find it missing).
+  import pytest
+
+  from training import train_data as td
+  from training.data import prepare
+
+  class Stop(Exception):
+    pass
+
+  def stop(*_args):
+    raise Stop
+
+  events = []
+  monkeypatch.setattr(td, "MOTION_CACHE", tmp_path / "empty_cache")
+  monkeypatch.setattr(prepare, "main", lambda argv: events.append("prepare"))
+  monkeypatch.setattr(es, "run_parallel", lambda cmds, lanes: events.append(f"run {len(cmds)}"))
+  monkeypatch.setattr(es, "summarize", stop)
+  with pytest.raises(Stop):
+    es.main(["--model", "m.dncw", "--out-dir", str(tmp_path / "out"), "--draws", "3", "--tempo-seeds", "2"])
+  assert events == ["prepare", "run 3", "run 2"]

@@ -68,6 +68,7 @@ def main(argv=None) -> None:
     ap.error(f"--songs: not validation songs: {', '.join(sorted(songs - set(ids)))}")
   if (args.songs is None) != (args.fill_from is None):
     ap.error("--songs and --fill-from go together")
+  td.ensure_motion_cache()  # the real dances' audio paths and styles (a fresh checkout has no cache yet)
   out = pathlib.Path(args.out_dir)
   (out / "dances").mkdir(parents=True, exist_ok=True)
   dances = []

@@ -9,7 +9,8 @@ processes at a time (the engine is single-threaded; two lanes fill this machine'
 D/summary.json and D/summary.md: every draw's FID_k, FID_g, Div_k, Div_g, PFC and jitter with their means,
 and the tempo ratio per run over all seeds (mean, bootstrap s.e., median), per song, seeds pooled, and the
 ideal-follower calibration. A draw or lane whose output already exists is not run again, so a stopped
-suite resumes; --summarize-only only aggregates what is there. Both tools honour DANCE_BUILD_DIR. About
+suite resumes; --summarize-only only aggregates what is there. Both tools honour DANCE_BUILD_DIR. A
+missing motion cache (a fresh checkout) is prepared once first (training.data.prepare, seconds). About
 10 min on this 2-core machine with nothing beside it (2026-12-04; up to 17 with other work beside it).
 
 --songs with --fill-from measures a change that touches only some songs (e.g. one style's setting) at
@@ -31,6 +32,7 @@ import sys
 
 import numpy as np
 
+from training import train_data as td
 from training.eval.engine_tempo import bootstrap_se
 
 METRICS = ("fid_k", "fid_g", "div_k", "div_g", "pfc", "jitter")
@@ -210,6 +212,9 @@ def main(argv=None) -> None:
       passthrough += ["--" + flag.replace("_", "-"), str(getattr(args, flag))]
   subset = ["--songs", args.songs] if args.songs else []
   if not args.summarize_only:
+    # Once, before the parallel draws: each would otherwise find the motion cache missing on a fresh checkout
+    # and prepare it at the same time as the others.
+    td.ensure_motion_cache()
     run_parallel(draw_commands(args.model, out, args.draws, passthrough + subset +
                                (["--fill-from", args.fill_from] if fill else [])), args.lanes)
     run_parallel(tempo_commands(args.model, out, args.tempo_seeds, args.lanes, passthrough + subset), args.lanes)

@@ -93,6 +93,7 @@ def main(argv=None) -> None:
                   help="dance-generate --period-lock (default: the model's; 0 = off)")
   ap.add_argument("--out", default=None)
   args = ap.parse_args(argv)
+  td.ensure_motion_cache()  # the songs' audio paths and styles (a fresh checkout has no cache yet)
   if len(args.seeds) < 3:
     print("engine_tempo: fewer than 3 seeds: the ideal-follower calibration is skipped", flush=True)
   split = td.load_split()
