@@ -377,7 +377,14 @@ def main(argv=None) -> int:
   ap.add_argument("--guidance", type=float, default=3.0,
                   help="the engine's default style guidance weight written into the model (sampling.guidance; "
                        "docs/model.md section 6); 1 = off")
-  ap.add_argument("--tempo-factors", default=",".join(str(f) for f in td.TEMPO_FACTORS))
+  ap.add_argument("--tempo-factors", default=",".join(str(f) for f in td.TEMPO_FACTORS),
+                  help="tempo augmentation of the fixed-rate phase: music and motion stretched together")
+  ap.add_argument("--warp-tempo-factors", default="1",
+                  help="tempo-normalised phase: the music of every training clip also played at these speeds "
+                       "(the warped motion stays; its features carry the other tempo; train_data.load_warped_clip)")
+  ap.add_argument("--warp-tempo-styles", default="",
+                  help="with --warp-tempo-factors: only these styles' songs (comma-separated) get the other "
+                       "tempi ('' = every style)")
   ap.add_argument("--vq-run", default=None, help="take the VQ-VAEs from this run directory")
   ap.add_argument("--vq-model", default=None, help="take the VQ-VAEs from this exported .dncw file")
   ap.add_argument("--init-model", default=None, help="fine-tune the sequence model of this .dncw file")
@@ -393,6 +400,9 @@ def main(argv=None) -> int:
     ap.error(f"--period-lock must be in [0, 100], got {args.period_lock}")
   if not 1.0 <= args.period_lock_sharpness <= 100.0:
     ap.error(f"--period-lock-sharpness must be in [1, 100], got {args.period_lock_sharpness}")
+  for st in filter(None, args.warp_tempo_styles.split(",")):
+    if st not in td.STYLES:
+      ap.error(f"--warp-tempo-styles: unknown style '{st}' (known: {', '.join(td.STYLES)})")
   try:
     args.style_period_lock = parse_style_weights(args.style_period_lock)
   except ValueError as e:

@@ -61,13 +61,7 @@ def ensure_motion_cache() -> None:
 
 def music_for(audio_path: str, factor: float) -> dict:
   """Features and PRE of the song played `factor` times faster (cached)."""
-  if abs(factor - 1.0) < 1e-6:
-    return extract_features(audio_path, cache_dir=FEATURE_CACHE)
-  src = pathlib.Path(audio_path)
-  dst = STRETCH_CACHE / f"{src.parent.name}_{src.stem}_x{factor:.3f}.wav"
-  if not dst.is_file():
-    stretch_audio(src, factor, dst)
-  return extract_features(dst, cache_dir=FEATURE_CACHE)
+  return extract_features(stretched_audio(audio_path, factor), cache_dir=FEATURE_CACHE)
 
 
 def load_clip(motion_id: str, factor: float = 1.0, with_music: bool = True, mirror: bool = False) -> Clip:
@@ -135,8 +129,19 @@ def bar_beats_of(style: str, bar_clock: dict | None) -> int:
   return int(bar_clock.get("style_beats_per_bar", {}).get(style, bar_clock["beats_per_bar"]))
 
 
+def stretched_audio(audio_path: str, factor: float) -> str:
+  """The song played `factor` times faster (sox tempo, pitch kept; cached): its own path at factor 1."""
+  if abs(factor - 1.0) < 1e-6:
+    return audio_path
+  src = pathlib.Path(audio_path)
+  dst = STRETCH_CACHE / f"{src.parent.name}_{src.stem}_x{factor:.3f}.wav"
+  if not dst.is_file():
+    stretch_audio(src, factor, dst)
+  return str(dst)
+
+
 def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int = 4, bar_beats: int = 0,
-                     mirror: bool = False) -> Clip:
+                     mirror: bool = False, factor: float = 1.0) -> Clip:
   """A paired dance on the tempo-normalised timeline of the engine's TempoClock (docs/model.md section 8):
   warped frame j takes the features and PRE of its source frame and the motion at its real position
   (linear interpolation of joint positions), so every song plays at `reference_bpm`. The clip starts at
@@ -144,18 +149,24 @@ def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int 
   steps) at or after the dance's first frame and ends where the dance or the music ends. bar_beats > 0: the
   `bar_phase` features are the bar clock's (the engine's audio::BarClockPhase of warped frame j, from
   `dance-features --clock --bar-beats`), as a session of a model with a bar clock sees them. mirror: the
-  dance reflected left-right (skeleton.mirror_positions)."""
+  dance reflected left-right (skeleton.mirror_positions). factor != 1: the music is the song played
+  `factor` times faster (tempo augmentation of the warped timeline): the clock folds it to the same
+  reference tempo, so the warped dance is (up to the tracker) the same, while the features carry the other
+  tempo (the running tempo, the tempogram, PRE's real-time phases), and the model learns that a style's
+  dance in beat time does not depend on the song's absolute tempo."""
   z = np.load(MOTION_CACHE / f"{motion_id}.npz")
   pos = z["positions"].astype(np.float64)
   if mirror:
     pos = mirror_positions(pos)
-  audio = str(z["audio_path"])
-  if not pathlib.Path(audio).is_absolute():
-    audio = str((REPO / audio).resolve())
+  song = str(z["audio_path"])
+  if not pathlib.Path(song).is_absolute():
+    song = str((REPO / song).resolve())
+  audio = stretched_audio(song, factor)
   m = extract_features(audio, cache_dir=FEATURE_CACHE)
   clock = extract_clock(audio, reference_bpm, cache_dir=FEATURE_CACHE, bar_beats=bar_beats).astype(np.float64)
-  n0 = int(round(float(z["audio_offset_s"]) * 30))
-  src, x = clock[:, 0].astype(np.int64), clock[:, 1] - n0   # x: position in the dance's own frames
+  n0 = int(round(float(z["audio_offset_s"]) / factor * 30))
+  # x: position in the dance's own (unstretched) frames; the stretched audio's frame k is the song's k * factor
+  src, x = clock[:, 0].astype(np.int64), (clock[:, 1] - n0) * factor
   ok = np.flatnonzero((x >= 0) & (x <= len(pos) - 1) & (src < len(m["features"])))
   if len(ok) < 2 * frames_per_step:
     raise ValueError(f"{motion_id}: too short on the warped timeline")
@@ -166,13 +177,13 @@ def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int 
   w = (xs - i)[:, None, None]
   warped = pos[i] * (1 - w) + pos[i + 1] * w
   upper, lower = rep.encode(warped)
-  clip = Clip(motion_id, 1.0, STYLES.index(str(z["style"])), upper.astype(np.float32), lower.astype(np.float32),
-              warped.astype(np.float32))
+  clip = Clip(motion_id, factor, STYLES.index(str(z["style"])), upper.astype(np.float32),
+              lower.astype(np.float32), warped.astype(np.float32))
   clip.features = m["features"][src[sel]].astype(np.float32)
   if bar_beats > 0:
     clip.features[:, BAR_PHASE_COS:BAR_PHASE_COS + 2] = clock[sel, 2:4].astype(np.float32)
   clip.pre = m["pre"][src[sel]].astype(np.float32)
-  clip.audio_path, clip.audio_offset_s = audio, float(z["audio_offset_s"])
+  clip.audio_path, clip.audio_offset_s = audio, float(z["audio_offset_s"]) / factor
   return clip
 
 

@@ -7,6 +7,7 @@ motion alone cannot carry the timing and the model has to read the clock from th
 """
 from __future__ import annotations
 
+import collections
 import json
 import math
 import pathlib
@@ -42,15 +43,17 @@ def tokenize(clip: td.Clip, vqs) -> dict:
 
 def build_tokens(ids, factors, vqs, log, cache: pathlib.Path | None = None,
                  style_refs: dict[str, float] | None = None, bar_clock: dict | None = None,
-                 mirror: bool = False) -> list[dict]:
+                 mirror: bool = False, warp_factors: tuple[float, ...] = (1.0,)) -> list[dict]:
   """Tokens of every (clip, factor); cached in `cache` (a file next to the VQ-VAE checkpoints) if given.
   style_refs: clips on the engine's tempo-normalised timeline (train_data.load_warped_clip) at their
-  style's reference tempo, one per song (the clock removes the tempo, so tempo factors are not used).
+  style's reference tempo, one per song and factor of `warp_factors` (`factors` are not used: the clock
+  removes the tempo from the motion; the warp factors stretch the music only, whose features still carry
+  the tempo).
   bar_clock (with style_refs): the bar phase features are the bar clock's (train_data.BAR_CLOCK).
   mirror: every clip also reflected left-right (skeleton.mirror_positions) on the same music: twice the
   dances, the turns and the arm styling in both directions."""
   if style_refs:
-    factors = (1.0,)
+    factors = tuple(warp_factors)
   if cache is not None and cache.is_file():
     toks = torch.load(cache)
     if (sorted({t["id"] for t in toks}) == sorted(ids) and sorted({t["factor"] for t in toks}) == sorted(factors)
@@ -62,7 +65,8 @@ def build_tokens(ids, factors, vqs, log, cache: pathlib.Path | None = None,
       for m in ((False, True) if mirror else (False,)):
         if style_refs:
           style = str(np.load(td.MOTION_CACHE / f"{i}.npz")["style"])
-          clip = td.load_warped_clip(i, style_refs[style], bar_beats=td.bar_beats_of(style, bar_clock), mirror=m)
+          clip = td.load_warped_clip(i, style_refs[style], bar_beats=td.bar_beats_of(style, bar_clock), mirror=m,
+                                     factor=f)
         else:
           clip = td.load_clip(i, f, mirror=m)
         toks.append(dict(tokenize(clip, vqs), mirror=m))
@@ -76,8 +80,12 @@ def window_probs(toks, ok, steps: int, style_balance: float = 1.0) -> np.ndarray
   """How often each usable clip (indices `ok`) is drawn: in proportion to its number of window starts, with
   each style's total share then set in proportion to (its windows) ** style_balance. 1 keeps the data's
   shares (waltz ~58 % of the Tang training steps, tango ~4 %); 0 gives every style the same share; 0.5 is
-  in between. Within a style the clips keep their relative weights."""
+  in between. Within a style the clips keep their relative weights. A song's versions (tempo factors,
+  mirror images) share its weight: augmenting some songs more than others does not change their shares."""
   lens = np.array([len(toks[j]["upper"]) for j in ok], np.float64) - steps
+  versions = collections.Counter(toks[j].get("id") for j in ok)
+  if len(set(versions.values())) > 1:  # (equal counts: the same shares, left bit-exact)
+    lens /= np.array([versions[toks[j].get("id")] for j in ok], np.float64)
   probs = lens / lens.sum()
   if style_balance != 1.0:
     styles = np.array([toks[j]["style"] for j in ok])
@@ -201,11 +209,19 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
   vq_dir = pathlib.Path(args.vq_run) if args.vq_run else run
   refs = style_refs_of(args, run, log)
   bars = bar_clock_of(args)
+  warp_factors = tuple(float(f) for f in str(getattr(args, "warp_tempo_factors", "1")).split(","))
   tag = warp_tag(refs, bars) if refs else "_".join(f"{f:g}" for f in factors)
+  train_tag = tag + ("_x" + "_".join(f"{f:g}" for f in warp_factors) if refs and warp_factors != (1.0,) else "")
   vq_dir.mkdir(parents=True, exist_ok=True)
   mirror = bool(getattr(args, "mirror", False))
   train_toks = build_tokens(train_ids, factors, vqs, log,
-                            vq_dir / f"tokens_train_{tag}{'_mirror' if mirror else ''}.pt", refs, bars, mirror)
+                            vq_dir / f"tokens_train_{train_tag}{'_mirror' if mirror else ''}.pt", refs, bars, mirror,
+                            warp_factors if refs else (1.0,))
+  warp_styles = str(getattr(args, "warp_tempo_styles", "") or "")
+  if refs and warp_styles:  # the other styles keep only their songs at their own tempo
+    keep = {td.STYLES.index(st) for st in warp_styles.split(",")}
+    train_toks = [t for t in train_toks if t["factor"] == 1.0 or t["style"] in keep]
+    log(f"seq: tempo factors {warp_factors} for {warp_styles} only: {len(train_toks)} clips")
   val_toks = build_tokens(val_ids, (1.0,), vqs, log, vq_dir / f"tokens_val_{tag}.pt", refs, bars)
   torch.manual_seed(0)
   rng = np.random.default_rng(0)

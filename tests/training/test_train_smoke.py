@@ -73,6 +73,17 @@ def test_style_balance_sets_each_styles_share_of_the_windows():
   assert abs(float(drawn[0].mean()) - 30 / 360) < 0.06 and abs(float(drawn[1].mean()) - 0.5) < 0.15
 
 
+def test_a_songs_tempo_versions_share_its_weight():
+  # Song a (style 0) at three tempo factors, song b (style 0) once, song c (style 1) once: a's versions
+  # together weigh what a weighs alone, so augmenting one song does not raise its share.
+  toks = ([{"id": "a", "style": 0, "upper": np.zeros(116)} for _ in range(3)]
+          + [{"id": "b", "style": 0, "upper": np.zeros(66)}, {"id": "c", "style": 1, "upper": np.zeros(36)}])
+  probs = window_probs(toks, np.arange(5), steps=16)
+  assert np.allclose(probs, [100 / 170 / 3] * 3 + [50 / 170, 20 / 170])
+  alone = window_probs(toks[2:], np.arange(3), steps=16, style_balance=0.5)
+  assert np.allclose(window_probs(toks, np.arange(5), steps=16, style_balance=0.5)[2:], [alone[0] / 3, *alone[1:]])
+
+
 def test_vq_two_steps_and_resume(tmp_path):
   rng = np.random.default_rng(0)
   arrays = [rng.standard_normal((80, 31)).astype(np.float32) * 0.01 for _ in range(2)]
