@@ -43,6 +43,7 @@ def test_summary_means_and_diversity_band(tmp_path):
   t = s["tempo"]
   assert t["seeds"] == [0, 1, 2] and t["runs"] == 6 and t["finite_runs"] == 5
   assert math.isclose(t["mean_ratio"], (1.0 + 0.5 + 1.0 + 0.0 + 1.0) / 5)
+  assert math.isclose(t["mean_abs_error"], (0.0 + 0.5 + 0.0 + 1.0 + 0.0) / 5) and math.isclose(t["within_20pct"], 0.6)
   assert math.isclose(t["per_song"]["a"], (1.0 + 0.5 + 0.0) / 3)
   # pooled: lane ratios weighted by the lane's seed count (2 and 1)
   assert math.isclose(t["pooled_per_song"]["a"], (2 * 1.0 + 0.6) / 3)
@@ -121,6 +122,13 @@ def test_markdown_of_a_single_tempo_run_says_what_it_cannot_estimate(tmp_path):
   assert t["mean_ratio_se"] is None and t["perfect_follower_mean_ratio"] is None and t["pooled_mean_ratio"] is None
   md = es.markdown({"draws": {}, "tempo": t}, "m")
   assert "**0.900** (s.e. n/a)" in md and "seeds pooled n/a" in md and "spread n/a" in md
+  assert "mean |ratio - 1| per run 0.100, runs within 0.2 of 1: 1.000" in md
+  # An overshoot scores as much above 1 as the mean ratio rewards it: 0.8 and 1.6 average 1.2, but miss by 0.4.
+  (tmp_path / "tempo_0.json").write_text(json.dumps(
+      {"seeds": [0, 1], "rows": [{"id": "a", "seed": 0, "ratio": 0.8}, {"id": "a", "seed": 1, "ratio": 1.6}],
+       "pooled_rows": []}))
+  t = es.summarize(tmp_path)["tempo"]
+  assert math.isclose(t["mean_ratio"], 1.2) and math.isclose(t["mean_abs_error"], 0.4) and t["within_20pct"] == 0.5
 
 
 def test_suite_prepares_a_missing_motion_cache_once_before_the_draws(tmp_path, monkeypatch):

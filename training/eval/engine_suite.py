@@ -150,6 +150,10 @@ def summarize(out: pathlib.Path, fill_from: pathlib.Path | None = None) -> dict:
         "seeds": sorted(seeds), "runs": len(rows), "finite_runs": len(ratios),
         "mean_ratio": float(np.mean(ratios)), "mean_ratio_se": bootstrap_se(ratios),
         "median_ratio": float(np.median(ratios)),
+        # The mean ratio counts an overshoot (a dance whose period changes more than the music's) as a gain;
+        # the distance from 1 does not: 0 = every run follows exactly.
+        "mean_abs_error": float(np.mean(np.abs(np.asarray(ratios) - 1.0))),
+        "within_20pct": float(np.mean(np.abs(np.asarray(ratios) - 1.0) <= 0.2)),
         "per_song": {m: float(np.mean(v)) for m, v in sorted(per_song.items())},
         "pooled_per_song": {m: float(sum(r * n for r, n in v) / sum(n for _, n in v))
                             for m, v in sorted(pooled_song.items())},
@@ -177,7 +181,8 @@ def markdown(summary: dict, model: str) -> str:
               f"{t['runs']} runs{filled}): per run mean "
               f"**{num(t['mean_ratio'])}** (s.e. {num(t['mean_ratio_se'])}), median {num(t['median_ratio'])}; seeds "
               f"pooled {num(t['pooled_mean_ratio'])}; ideal follower with this spread "
-              f"{num(t['perfect_follower_mean_ratio'])}",
+              f"{num(t['perfect_follower_mean_ratio'])}; mean |ratio - 1| per run {num(t.get('mean_abs_error'))}, "
+              f"runs within 0.2 of 1: {num(t.get('within_20pct'))}",
               "", "| song | per run | pooled |", "|---|---|---|"]
     for m, v in t["per_song"].items():
       lines.append(f"| {m} | {v:.3f} | {t['pooled_per_song'].get(m, float('nan')):.3f} |")
