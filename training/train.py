@@ -400,6 +400,8 @@ def main(argv=None) -> int:
     ap.error(f"--period-lock must be in [0, 100], got {args.period_lock}")
   if not 1.0 <= args.period_lock_sharpness <= 100.0:
     ap.error(f"--period-lock-sharpness must be in [1, 100], got {args.period_lock_sharpness}")
+  if args.warp_tempo_styles and [float(f) for f in args.warp_tempo_factors.split(",")] == [1.0]:
+    ap.error("--warp-tempo-styles needs --warp-tempo-factors (other speeds than 1)")
   for st in filter(None, args.warp_tempo_styles.split(",")):
     if st not in td.STYLES:
       ap.error(f"--warp-tempo-styles: unknown style '{st}' (known: {', '.join(td.STYLES)})")
