@@ -355,6 +355,10 @@ def main(argv=None) -> int:
   ap.add_argument("--no-pre", action="store_true")
   ap.add_argument("--no-gate", action="store_true")
   ap.add_argument("--shared-mamba", action="store_true")
+  ap.add_argument("--fold-tempo", action="store_true",
+                  help="tempo-normalised runs: the tempo features (tempogram, running tempo) of the warped "
+                       "timeline folded to the style's reference tempo (time_base.fold_tempo; docs/model.md "
+                       "section 1), so the model sees every song of a style at one tempo")
   ap.add_argument("--bar-clock", action="store_true",
                   help="tempo-normalised runs: the bar clock replaces the beat tracker's bar phase (docs/model.md "
                        "section 1); measured no better on tempo following (docs/training.md), so off by default")
@@ -402,6 +406,8 @@ def main(argv=None) -> int:
     ap.error(f"--period-lock-sharpness must be in [1, 100], got {args.period_lock_sharpness}")
   if args.warp_tempo_styles and [float(f) for f in args.warp_tempo_factors.split(",")] == [1.0]:
     ap.error("--warp-tempo-styles needs --warp-tempo-factors (other speeds than 1)")
+  if args.fold_tempo and args.tempo_ref <= 0:
+    ap.error("--fold-tempo needs the tempo-normalised timeline (--tempo-ref > 0)")
   for st in filter(None, args.warp_tempo_styles.split(",")):
     if st not in td.STYLES:
       ap.error(f"--warp-tempo-styles: unknown style '{st}' (known: {', '.join(td.STYLES)})")

@@ -27,6 +27,7 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 MOTION_CACHE = REPO / "training" / "cache" / "motion"
 STRETCH_CACHE = REPO / "training" / "cache" / "stretched_audio"
 BAR_PHASE_COS = 105  # feature index of bar_phase (cos, sin): docs/features.md
+TEMPOGRAM, TEMPO = 54, 104  # feature indices of the tempogram (48 entries) and the running tempo
 FEATURE_CACHE = REPO / "training" / "cache" / "features"
 STYLES = ["cha-cha", "rumba", "tango", "waltz", "salsa", "pop"]
 TEMPO_FACTORS = (0.8, 0.9, 1.0, 1.1, 1.25)
@@ -141,7 +142,7 @@ def stretched_audio(audio_path: str, factor: float) -> str:
 
 
 def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int = 4, bar_beats: int = 0,
-                     mirror: bool = False, factor: float = 1.0) -> Clip:
+                     mirror: bool = False, factor: float = 1.0, fold_tempo: bool = False) -> Clip:
   """A paired dance on the tempo-normalised timeline of the engine's TempoClock (docs/model.md section 8):
   warped frame j takes the features and PRE of its source frame and the motion at its real position
   (linear interpolation of joint positions), so every song plays at `reference_bpm`. The clip starts at
@@ -153,7 +154,10 @@ def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int 
   `factor` times faster (tempo augmentation of the warped timeline): the clock folds it to the same
   reference tempo, so the warped dance is (up to the tracker) the same, while the features carry the other
   tempo (the running tempo, the tempogram, PRE's real-time phases), and the model learns that a style's
-  dance in beat time does not depend on the song's absolute tempo."""
+  dance in beat time does not depend on the song's absolute tempo. fold_tempo: the `tempogram` and `tempo`
+  features are shown folded to the reference tempo (the engine's audio::FoldTempoFeatures with the source
+  frame's clock rate, from `dance-features --clock --fold-tempo`), as a session of a model with
+  time_base.fold_tempo sees them: every song of a style then plays at one tempo in the features too."""
   z = np.load(MOTION_CACHE / f"{motion_id}.npz")
   pos = z["positions"].astype(np.float64)
   if mirror:
@@ -163,7 +167,8 @@ def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int 
     song = str((REPO / song).resolve())
   audio = stretched_audio(song, factor)
   m = extract_features(audio, cache_dir=FEATURE_CACHE)
-  clock = extract_clock(audio, reference_bpm, cache_dir=FEATURE_CACHE, bar_beats=bar_beats).astype(np.float64)
+  clock = extract_clock(audio, reference_bpm, cache_dir=FEATURE_CACHE, bar_beats=bar_beats,
+                        fold_tempo=fold_tempo).astype(np.float64)
   n0 = int(round(float(z["audio_offset_s"]) / factor * 30))
   # x: position in the dance's own (unstretched) frames; the stretched audio's frame k is the song's k * factor
   src, x = clock[:, 0].astype(np.int64), (clock[:, 1] - n0) * factor
@@ -182,6 +187,10 @@ def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int 
   clip.features = m["features"][src[sel]].astype(np.float32)
   if bar_beats > 0:
     clip.features[:, BAR_PHASE_COS:BAR_PHASE_COS + 2] = clock[sel, 2:4].astype(np.float32)
+  if fold_tempo:
+    c0 = 4 if bar_beats > 0 else 2
+    clip.features[:, TEMPOGRAM:TEMPOGRAM + 48] = clock[sel, c0:c0 + 48].astype(np.float32)
+    clip.features[:, TEMPO] = clock[sel, c0 + 48].astype(np.float32)
   clip.pre = m["pre"][src[sel]].astype(np.float32)
   clip.audio_path, clip.audio_offset_s = audio, float(z["audio_offset_s"]) / factor
   return clip

@@ -43,7 +43,8 @@ def tokenize(clip: td.Clip, vqs) -> dict:
 
 def build_tokens(ids, factors, vqs, log, cache: pathlib.Path | None = None,
                  style_refs: dict[str, float] | None = None, bar_clock: dict | None = None,
-                 mirror: bool = False, warp_factors: tuple[float, ...] = (1.0,)) -> list[dict]:
+                 mirror: bool = False, warp_factors: tuple[float, ...] = (1.0,),
+                 fold_tempo: bool = False) -> list[dict]:
   """Tokens of every (clip, factor); cached in `cache` (a file next to the VQ-VAE checkpoints) if given.
   style_refs: clips on the engine's tempo-normalised timeline (train_data.load_warped_clip) at their
   style's reference tempo, one per song and factor of `warp_factors` (`factors` are not used: the clock
@@ -51,7 +52,8 @@ def build_tokens(ids, factors, vqs, log, cache: pathlib.Path | None = None,
   the tempo).
   bar_clock (with style_refs): the bar phase features are the bar clock's (train_data.BAR_CLOCK).
   mirror: every clip also reflected left-right (skeleton.mirror_positions) on the same music: twice the
-  dances, the turns and the arm styling in both directions."""
+  dances, the turns and the arm styling in both directions.
+  fold_tempo (with style_refs): the tempo features folded to the reference (train_data.load_warped_clip)."""
   if style_refs:
     factors = tuple(warp_factors)
   if cache is not None and cache.is_file():
@@ -66,7 +68,7 @@ def build_tokens(ids, factors, vqs, log, cache: pathlib.Path | None = None,
         if style_refs:
           style = str(np.load(td.MOTION_CACHE / f"{i}.npz")["style"])
           clip = td.load_warped_clip(i, style_refs[style], bar_beats=td.bar_beats_of(style, bar_clock), mirror=m,
-                                     factor=f)
+                                     factor=f, fold_tempo=fold_tempo)
         else:
           clip = td.load_clip(i, f, mirror=m)
         toks.append(dict(tokenize(clip, vqs), mirror=m))
@@ -166,11 +168,16 @@ def dance_periods_of(args, run: pathlib.Path, log) -> dict[str, int]:
   return periods
 
 
-def warp_tag(refs: dict[str, float], bar_clock: dict | None = None) -> str:
+def warp_tag(refs: dict[str, float], bar_clock: dict | None = None, fold_tempo: bool = False) -> str:
   tag = "warp_" + "_".join(f"{refs[s]:g}" for s in sorted(refs))
   if bar_clock:
     tag += "_bar" + "_".join(str(td.bar_beats_of(s, bar_clock)) for s in sorted(refs))
-  return tag
+  return tag + ("_fold" if fold_tempo else "")
+
+
+def fold_tempo_of(args) -> bool:
+  """A tempo-normalised run with --fold-tempo: the tempo features folded to the style's reference."""
+  return args.tempo_ref > 0 and bool(getattr(args, "fold_tempo", False))
 
 
 def bar_clock_of(args) -> dict | None:
@@ -210,19 +217,20 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
   refs = style_refs_of(args, run, log)
   bars = bar_clock_of(args)
   warp_factors = tuple(float(f) for f in str(getattr(args, "warp_tempo_factors", "1")).split(","))
-  tag = warp_tag(refs, bars) if refs else "_".join(f"{f:g}" for f in factors)
+  fold = fold_tempo_of(args)
+  tag = warp_tag(refs, bars, fold) if refs else "_".join(f"{f:g}" for f in factors)
   train_tag = tag + ("_x" + "_".join(f"{f:g}" for f in warp_factors) if refs and warp_factors != (1.0,) else "")
   vq_dir.mkdir(parents=True, exist_ok=True)
   mirror = bool(getattr(args, "mirror", False))
   train_toks = build_tokens(train_ids, factors, vqs, log,
                             vq_dir / f"tokens_train_{train_tag}{'_mirror' if mirror else ''}.pt", refs, bars, mirror,
-                            warp_factors if refs else (1.0,))
+                            warp_factors if refs else (1.0,), fold)
   warp_styles = str(getattr(args, "warp_tempo_styles", "") or "")
   if refs and warp_styles:  # the other styles keep only their songs at their own tempo
     keep = {td.STYLES.index(st) for st in warp_styles.split(",")}
     train_toks = [t for t in train_toks if t["factor"] == 1.0 or t["style"] in keep]
     log(f"seq: tempo factors {warp_factors} for {warp_styles} only: {len(train_toks)} clips")
-  val_toks = build_tokens(val_ids, (1.0,), vqs, log, vq_dir / f"tokens_val_{tag}.pt", refs, bars)
+  val_toks = build_tokens(val_ids, (1.0,), vqs, log, vq_dir / f"tokens_val_{tag}.pt", refs, bars, fold_tempo=fold)
   torch.manual_seed(0)
   rng = np.random.default_rng(0)
   if args.init_model:
@@ -344,8 +352,9 @@ def stage_engine_eval(args, vqs, run: pathlib.Path, log) -> dict:
   refs = style_refs_of(args, run, log)
   bars = bar_clock_of(args)
   val_toks = build_tokens(td.paired_ids(split["validation"]), (1.0,), vqs, log,
-                          (pathlib.Path(args.vq_run) if args.vq_run else run) / f"tokens_val_{warp_tag(refs, bars)}.pt",
-                          refs, bars)
+                          (pathlib.Path(args.vq_run) if args.vq_run else run)
+                          / f"tokens_val_{warp_tag(refs, bars, fold_tempo_of(args))}.pt",
+                          refs, bars, fold_tempo=fold_tempo_of(args))
   report = {"losses": validation(model, val_toks, model.cfg, n_batches=12)}
   log(f"eval losses: {json.dumps(report['losses'])}")
   if not pathlib.Path(args.out).is_file():
@@ -372,6 +381,8 @@ def time_base_meta(args, run: pathlib.Path, log) -> dict:
   tb = {"kind": "tempo", "reference_bpm": float(args.tempo_ref), "style_reference_bpm": style_refs_of(args, run, log)}
   if bar_clock_of(args):
     tb["bar_clock"] = bar_clock_of(args)
+  if fold_tempo_of(args):
+    tb["fold_tempo"] = True
   tb["dance_period_beats"] = dance_periods_of(args, run, log)
   tb["period_lock"] = float(getattr(args, "period_lock", 0.0))
   sharpness = getattr(args, "period_lock_sharpness", None)

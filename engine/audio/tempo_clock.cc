@@ -1,5 +1,7 @@
 #include "engine/audio/tempo_clock.h"
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 
 namespace dance::engine::audio {
@@ -56,6 +58,22 @@ void BarClockPhase(int64_t warped_frame, double bar_frames, float* features) {
   const double a = 2.0 * 3.14159265358979323846 * (x - std::floor(x));
   features[kBarPhaseCosIndex] = static_cast<float>(std::cos(a));
   features[kBarPhaseSinIndex] = static_cast<float>(std::sin(a));
+}
+
+void FoldTempoFeatures(double rate, float* features) {
+  if (!(rate > 0.0) || !std::isfinite(rate)) return;
+  const double octaves = std::log2(rate);
+  const double per_entry = std::log2(kTempogramMaxBpm / kTempogramMinBpm) / (kNumTempogram - 1);
+  const double shift = octaves / per_entry;
+  std::array<double, kNumTempogram> in;
+  for (int i = 0; i < kNumTempogram; ++i) in[i] = features[kTempogramBegin + i];
+  for (int i = 0; i < kNumTempogram; ++i) {
+    const double x = std::clamp(i + shift, 0.0, static_cast<double>(kNumTempogram - 1));
+    const int a = std::min(static_cast<int>(std::floor(x)), kNumTempogram - 2);
+    const double w = x - a;
+    features[kTempogramBegin + i] = static_cast<float>(in[a] * (1.0 - w) + in[a + 1] * w);
+  }
+  features[kTempoIndex] = static_cast<float>(static_cast<double>(features[kTempoIndex]) - octaves);
 }
 
 }  // namespace dance::engine::audio

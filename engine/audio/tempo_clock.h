@@ -95,6 +95,15 @@ double BarClockFrames(int beats_per_bar, double reference_bpm);
 // (a kNumFeatures row).
 void BarClockPhase(int64_t warped_frame, double bar_frames, float* features);
 
+// The tempo fold of a tempo-normalised model (runtime Model::fold_tempo(), docs/model.md section 1): the
+// features of a warped frame whose source frame has clock rate r (Span::rate = Fold(tempo) / R) are shown
+// as if the song played at the folded reference, i.e. r times slower: the `tempogram` entries move along
+// their log-tempo axis by -log2(r) octaves (entry i takes the value at fractional index i + log2(r) / d,
+// d = log2(240 / 60) / 47 octaves per entry, linearly interpolated, clamped to the first and last entry)
+// and `tempo` becomes tempo - log2(r). The rest of the row is unchanged. The engine's session and
+// `dance-features --clock --fold-tempo` (training) both use this function.
+void FoldTempoFeatures(double rate, float* features);
+
 }  // namespace dance::engine::audio
 
 #endif  // DANCE_ENGINE_AUDIO_TEMPO_CLOCK_H_

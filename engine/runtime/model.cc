@@ -152,6 +152,12 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
           m->style_beats_per_bar_.assign(per.begin(), per.end());
         }
       }
+      if (tb.contains("fold_tempo")) {
+        if (!tb["fold_tempo"].is_boolean()) {
+          return absl::InvalidArgumentError("weights metadata: time_base.fold_tempo must be true or false");
+        }
+        m->fold_tempo_ = tb["fold_tempo"].get<bool>();
+      }
       if (tb.contains("dance_period_beats")) {
         std::vector<double> per(m->styles_.size(), 0.0);
         DANCE_RETURN_IF_ERROR(ReadPerStyle(*m, tb["dance_period_beats"], "dance_period_beats", 0.5, 16.0, false,

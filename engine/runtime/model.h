@@ -72,6 +72,11 @@ class Model {
                                                                              : beats_per_bar_;
   }
   bool bar_clock() const { return beats_per_bar_ > 0; }
+  // The tempo fold of a tempo-normalised model (metadata "time_base": {..., "fold_tempo": true}): the
+  // `tempogram` and `tempo` features of warped frame j are shown as if the song played at the folded
+  // reference tempo (audio::FoldTempoFeatures with the source frame's clock rate; docs/model.md section 1),
+  // so the model sees a style's songs at one tempo whatever their own. false = the features as extracted.
+  bool fold_tempo() const { return fold_tempo_; }
   // The dance period of style row `row` in beats, measured on the training dances (metadata "time_base":
   // {..., "dance_period_beats": {style: beats, ...}}; the waltzes here move once per 3-beat bar, cha-cha and
   // rumba every 2 beats); 0 = not known (styles without one, "none", models without the key). Sessions use
@@ -135,6 +140,7 @@ class Model {
   double tempo_reference_bpm_ = 0.0;
   std::vector<double> style_reference_bpm_;  // per style row (n_styles)
   int beats_per_bar_ = 0;                     // bar clock: default beats per bar (0 = none)
+  bool fold_tempo_ = false;                   // time_base.fold_tempo
   std::vector<int> style_beats_per_bar_;      // per style row (n_styles)
   std::vector<double> dance_period_beats_;    // per style row (n_styles); empty = none
   float default_period_lock_ = 0.0f;

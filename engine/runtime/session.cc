@@ -223,7 +223,10 @@ void Session::CollectFrames() {
       const float tempo = popped_.features[i * kFeatureDims + audio::kTempoIndex];
       const audio::TempoClock::Span span = warp_.clock.Push(audio::TempoClock::TempoFromFeature(tempo));
       if (span.frame >= warp_.next_output) warp_.starts.push_back(span.begin);
-      for (int64_t j = span.first_warped; j < span.end_warped; ++j) warp_.source.push_back(span.frame);
+      for (int64_t j = span.first_warped; j < span.end_warped; ++j) {
+        warp_.source.push_back(span.frame);
+        warp_.rate.push_back(span.rate);
+      }
     }
   }
   frames_total_ += n;
@@ -251,9 +254,11 @@ void Session::StepInputs(const float** music, const float** pre) {
     music_token_.resize(static_cast<size_t>(fps) * kFeatureDims);
     int64_t src = 0;
     for (int f = 0; f < fps; ++f) {
-      src = warp_.source[first_warped + f - warp_.first_source] - first_pending_frame_;
+      const int64_t w = first_warped + f - warp_.first_source;
+      src = warp_.source[w] - first_pending_frame_;
       float* row = music_token_.data() + static_cast<size_t>(f) * kFeatureDims;
       std::copy_n(pending_features_.data() + src * kFeatureDims, kFeatureDims, row);
+      if (model_->fold_tempo()) audio::FoldTempoFeatures(warp_.rate[w], row);
       if (bar_frames_ > 0.0) audio::BarClockPhase(first_warped + f, bar_frames_, row);
     }
     *music = music_token_.data();
@@ -383,6 +388,7 @@ void Session::EmitFrames(const Eigen::Ref<const Eigen::MatrixXf>& up, const Eige
     const int64_t next_warped = (cond_.step + c.music_lookahead_steps) * c.frames_per_step;
     while (warp_.first_source < next_warped && !warp_.source.empty()) {
       warp_.source.pop_front();
+      warp_.rate.pop_front();
       ++warp_.first_source;
     }
     const int64_t needed_from = warp_.source.empty() ? frames_total_ : warp_.source.front();
@@ -590,7 +596,7 @@ int64_t Session::StateBytes() const {
   n += static_cast<int64_t>(code_history_.size() * sizeof(code_history_[0]) +
                             heading_history_.size() * sizeof(double) + lock_sim_.size() * sizeof(float) +
                             lock_seen_.capacity());
-  n += static_cast<int64_t>(warp_.source.size() * sizeof(int64_t) + warp_.starts.size() * sizeof(double) +
+  n += static_cast<int64_t>(warp_.source.size() * (sizeof(int64_t) + sizeof(double)) + warp_.starts.size() * sizeof(double) +
                             warp_.poses.size() * (sizeof(warp_.poses[0]) + sizeof(warp_.pose_codes[0])));
   return n;
 }

@@ -84,6 +84,7 @@ struct PoseFrame {
 struct WarpState {
   audio::TempoClock clock;
   std::deque<int64_t> source;   // source real frame of warped frames [first_source, ...)
+  std::deque<double> rate;      // clock rate r_n of each one's source frame (the tempo fold reads it)
   int64_t first_source = 0;
   std::deque<double> starts;    // W_m of real frames [next_output, clock.frames())
   int64_t next_output = 0;      // next real frame to emit

@@ -1,7 +1,8 @@
 // dance-features: decodes an audio file and writes the engine's causal features as .npy arrays.
 //
 //   dance-features AUDIO --out FEATURES.npy [--pre PRE.npy] [--pre-input PRE_INPUT.npy]
-//                  [--clock CLOCK.npy [--tempo-ref BPM] [--bar-beats B]] [--chunk-samples N] [--summary]
+//                  [--clock CLOCK.npy [--tempo-ref BPM] [--bar-beats B] [--fold-tempo]] [--chunk-samples N]
+//                  [--summary]
 //
 // FEATURES.npy: float32 (frames, 108); FEATURES.npy.json: the layout (names, index ranges, units).
 // PRE.npy: float32 (frames, 128). PRE_INPUT.npy: float32 (frames, 4), PRE's input channels (for the
@@ -11,6 +12,9 @@
 // --tempo-ref BPM (default 105; engine/audio/tempo_clock.h), its source feature frame and its continuous
 // real frame position; training resamples features and motion with it. With --bar-beats B (1..16) it
 // has 4 columns: also (cos, sin) of the bar clock's phase at B beats per bar (audio::BarClockPhase).
+// --fold-tempo appends 49 columns: the warped frame's `tempogram` (48) and `tempo` features folded to
+// the reference tempo with its source frame's clock rate (audio::FoldTempoFeatures), as a session of a
+// model with time_base.fold_tempo sees them.
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -39,13 +43,15 @@ struct Flags {
   std::string audio, out, pre, pre_input, clock;
   double tempo_ref_bpm = 105.0;
   int bar_beats = 0;
+  bool fold_tempo = false;
   int64_t chunk_samples = 4096;
   bool summary = false;
 };
 
 constexpr char kUsage[] =
     "usage: dance-features AUDIO --out FEATURES.npy [--pre PRE.npy] [--pre-input PRE_INPUT.npy]\n"
-    "                      [--clock CLOCK.npy [--tempo-ref BPM] [--bar-beats B]] [--chunk-samples N] [--summary]\n";
+    "                      [--clock CLOCK.npy [--tempo-ref BPM] [--bar-beats B] [--fold-tempo]] [--chunk-samples N]\n"
+    "                      [--summary]\n";
 
 absl::Status ParseFlags(int argc, char** argv, Flags* flags) {
   for (int i = 1; i < argc; ++i) {
@@ -84,6 +90,8 @@ absl::Status ParseFlags(int argc, char** argv, Flags* flags) {
         s = absl::InvalidArgumentError(
             absl::StrCat("--chunk-samples must be a positive integer, got '", v, "'"));
       }
+    } else if (arg == "--fold-tempo") {
+      flags->fold_tempo = true;
     } else if (arg == "--summary") {
       flags->summary = true;
     } else if (arg == "-h" || arg == "--help") {
@@ -101,6 +109,9 @@ absl::Status ParseFlags(int argc, char** argv, Flags* flags) {
   if (flags->out.empty() && !flags->summary && flags->pre.empty() && flags->pre_input.empty() &&
       flags->clock.empty()) {
     return absl::InvalidArgumentError("nothing to do: give --out, --pre, --pre-input, --clock or --summary");
+  }
+  if (flags->fold_tempo && flags->clock.empty()) {
+    return absl::InvalidArgumentError("--fold-tempo needs --clock (it adds columns to the clock)");
   }
   return absl::OkStatus();
 }
@@ -203,9 +214,16 @@ absl::Status Run(const Flags& flags) {
           rows.push_back(row[kBarPhaseCosIndex]);
           rows.push_back(row[kBarPhaseSinIndex]);
         }
+        if (flags.fold_tempo) {
+          std::array<float, kNumFeatures> row;
+          std::copy_n(all.features.data() + n * kNumFeatures, kNumFeatures, row.data());
+          FoldTempoFeatures(span.rate, row.data());
+          rows.insert(rows.end(), row.begin() + kTempogramBegin, row.begin() + kTempogramBegin + kNumTempogram);
+          rows.push_back(row[kTempoIndex]);
+        }
       }
     }
-    const int cols = flags.bar_beats > 0 ? 4 : 2;
+    const int cols = (flags.bar_beats > 0 ? 4 : 2) + (flags.fold_tempo ? kNumTempogram + 1 : 0);
     if (absl::Status s = WriteNpyFloat32(flags.clock, rows, static_cast<int64_t>(rows.size() / cols), cols);
         !s.ok()) {
       return s;

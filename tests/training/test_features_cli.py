@@ -127,3 +127,33 @@ def test_clock_refuses_a_bad_reference(features_cli, song, tmp_path):
     proc = subprocess.run([str(features_cli), str(song), "--clock", str(tmp_path / "c.npy"), "--tempo-ref", "0"],
                           capture_output=True, text=True)
     assert proc.returncode == 2 and "--tempo-ref" in proc.stderr
+
+
+def test_clock_fold_tempo_columns_are_the_features_at_the_reference(features_cli, song, tmp_path):
+    """`--clock --fold-tempo`: 49 more columns, the source frame's tempogram and tempo folded with its clock
+    rate (audio::FoldTempoFeatures): the tempo is the reference times a power of two, and the tempogram is
+    the source frame's moved along its log-tempo axis by the octaves the fold removed."""
+    ref = 97.0
+    feats_path, plain, folded = tmp_path / "f.npy", tmp_path / "c2.npy", tmp_path / "c51.npy"
+    for path, extra in ((plain, ["--out", str(feats_path)]), (folded, ["--fold-tempo"])):
+        proc = subprocess.run([str(features_cli), str(song), "--clock", str(path), "--tempo-ref", str(ref)] + extra,
+                              capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+    feats, c2, c = np.load(feats_path), np.load(plain), np.load(folded)
+    assert c.shape == (len(c2), 2 + 48 + 1)
+    np.testing.assert_array_equal(c[:, :2], c2)
+    src = c[:, 0].astype(np.int64)
+    tempo = c[:, 50].astype(np.float64)
+    octaves = np.log2(120.0 * 2.0 ** tempo / ref)
+    np.testing.assert_allclose(octaves, np.round(octaves), atol=1e-4)
+    # The fold's rate from the two tempi, then the tempogram shifted by log2(rate) / (2 / 47) entries.
+    log_rate = feats[src, 104].astype(np.float64) - tempo
+    assert np.all(np.abs(log_rate) <= 0.5 + np.log2(1.08) + 1e-6)
+    assert np.mean(np.abs(log_rate) > 0.01) > 0.5  # the song is not at the reference: the fold moves it
+    grid = np.arange(48, dtype=np.float64)
+    for j in range(0, len(c), 97):
+        x = np.clip(grid + log_rate[j] / (2.0 / 47.0), 0, 47)
+        np.testing.assert_allclose(c[j, 2:50], np.interp(x, grid, feats[src[j], 54:102]), atol=2e-5)
+    proc = subprocess.run([str(features_cli), str(song), "--out", str(feats_path), "--fold-tempo"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "--fold-tempo needs --clock" in proc.stderr

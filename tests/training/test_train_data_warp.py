@@ -71,3 +71,28 @@ def test_warped_clip_keeps_the_dance_and_the_stretched_tempo(warp_setup):
   # The music features carry each song's own tempo: the running tempo (feature 104 = log2(BPM / 120)).
   tempo = {f: float(np.median(c.features[len(c.features) // 2:, 104])) for f, c in clips.items()}
   assert abs(tempo[1.0] - 0.0) < 0.05 and abs(tempo[0.8] - np.log2(0.8)) < 0.05, tempo
+
+
+def test_fold_tempo_shows_every_factor_at_the_reference(warp_setup):
+  # With fold_tempo the tempo features are folded to the reference (audio::FoldTempoFeatures): the song at
+  # 96 BPM (factor 0.8) is shown at 120 BPM like the original, in its running tempo and in its tempogram;
+  # the other features are the unfolded clip's.
+  grams = {}
+  for f in (1.0, 0.8):
+    plain = td.load_warped_clip("clicks", BPM, factor=f)
+    folded = td.load_warped_clip("clicks", BPM, factor=f, fold_tempo=True)
+    np.testing.assert_array_equal(folded.positions, plain.positions)
+    half = len(folded.features) // 2
+    assert abs(float(np.median(folded.features[half:, td.TEMPO]))) < 0.01, f
+    other = np.ones(108, bool)
+    other[td.TEMPOGRAM:td.TEMPOGRAM + 48] = other[td.TEMPO] = False
+    np.testing.assert_array_equal(folded.features[:, other], plain.features[:, other])
+    if f == 0.8:  # unfolded, the stretched song's tempo shows (a check that the fold did something)
+      assert abs(float(np.median(plain.features[half:, td.TEMPO])) - np.log2(0.8)) < 0.05
+    grams[f] = {k: c.features[half:, td.TEMPOGRAM:td.TEMPOGRAM + 48].mean(0) for k, c in
+                (("plain", plain), ("folded", folded))}
+  # The beat's autocorrelation peak (away from the 60 BPM end, where the bar's accent also peaks): at the
+  # original's 120 BPM (entry 23.5) in both folded clips, 7.6 entries lower in the stretched song unfolded.
+  peak = {(f, k): 10 + int(np.argmax(g[k][10:])) for f, g in grams.items() for k in ("plain", "folded")}
+  assert peak[(1.0, "folded")] in (23, 24) and peak[(0.8, "folded")] in (23, 24), peak
+  assert peak[(1.0, "plain")] in (23, 24) and peak[(0.8, "plain")] in (15, 16, 17), peak

@@ -173,8 +173,18 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
   assert tb["style_period_lock"] == {"waltz": 0.0, "tango": 2.5} and tb["period_lock_sharpness"] == 10.0
   args.style_period_lock = train.parse_style_weights("")
   assert "style_period_lock" not in time_base_meta(args, tmp_path, print)
+  # The tempo fold: written only when asked for, and its tokens are cached apart from the unfolded ones.
+  from training.train_seq import warp_tag
+  assert "fold_tempo" not in time_base_meta(args, tmp_path, print)
+  args.fold_tempo = True
+  assert time_base_meta(args, tmp_path, print)["fold_tempo"] is True
+  refs = {"waltz": 87.0, "tango": 128.0}
+  assert warp_tag(refs, None, True) == warp_tag(refs) + "_fold"
   args.tempo_ref = 0.0
   assert time_base_meta(args, tmp_path, print) == {"kind": "fixed"}
+  with pytest.raises(SystemExit) as e:
+    train.main(["--run", str(tmp_path / "never"), "--fold-tempo", "--tempo-ref", "0"])
+  assert e.value.code == 2
   # The one command refuses a reach outside 1..4 or not two integers before doing anything.
   for bad in ("0,2", "1,5", "2", "1,2,1", "a,b"):
     with pytest.raises(SystemExit) as e:

@@ -108,23 +108,28 @@ def extract_features(audio: str | os.PathLike, cache_dir: str | os.PathLike | No
 
 
 def extract_clock(audio: str | os.PathLike, reference_bpm: float,
-                  cache_dir: str | os.PathLike | None = None, bar_beats: int = 0) -> np.ndarray:
+                  cache_dir: str | os.PathLike | None = None, bar_beats: int = 0,
+                  fold_tempo: bool = False) -> np.ndarray:
     """The engine's tempo clock over one audio file (`dance-features --clock`, engine/audio/tempo_clock.h):
     (warped frames, 2) float32, per warped frame its source feature frame and its real frame position;
-    with bar_beats > 0, (warped frames, 4): also (cos, sin) of the bar clock's phase at bar_beats beats
-    per bar (audio::BarClockPhase)."""
+    with bar_beats > 0, two more columns: (cos, sin) of the bar clock's phase at bar_beats beats per bar
+    (audio::BarClockPhase); with fold_tempo, 49 more (last): the frame's `tempogram` (48) and `tempo`
+    features folded to the reference tempo (audio::FoldTempoFeatures, `--fold-tempo`)."""
     audio = Path(audio)
     cli = find_cli()
     cache_root = Path(cache_dir or os.environ.get("DANCE_FEATURE_CACHE",
                                                   Path.home() / ".cache" / "dance-features"))
     out_dir = cache_root / f"{_hash_file(audio)}-{_hash_file(cli)}"
     out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / (f"clock_{reference_bpm:g}.npy" if bar_beats <= 0 else f"clock_{reference_bpm:g}_bar{bar_beats}.npy")
+    name = f"clock_{reference_bpm:g}" + (f"_bar{bar_beats}" if bar_beats > 0 else "") + ("_fold" if fold_tempo else "")
+    path = out_dir / f"{name}.npy"
     if not path.is_file():
         tmp = out_dir / f".clock_{os.getpid()}.npy"
         cmd = [str(cli), str(audio), "--clock", str(tmp), "--tempo-ref", f"{reference_bpm:g}"]
         if bar_beats > 0:
             cmd += ["--bar-beats", str(int(bar_beats))]
+        if fold_tempo:
+            cmd += ["--fold-tempo"]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             raise RuntimeError(f"dance-features --clock failed on {audio}: {proc.stderr.strip()}")

@@ -1,6 +1,7 @@
 // TempoClock: octave folding, hysteresis, and the real <-> warped frame mapping (engine/audio/tempo_clock.h).
 #include "engine/audio/tempo_clock.h"
 
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -108,6 +109,58 @@ TEST(BarClock, IsAMetronomeOfBeatsPerBarAtTheReference) {
     if (i != kBarPhaseCosIndex && i != kBarPhaseSinIndex) {
       EXPECT_EQ(row[i], 7.0f) << i;
     }
+  }
+}
+
+TEST(FoldTempo, ShowsTheSongAtTheFoldedReference) {
+  // A song tracked at 115 BPM on a clock at reference 125 (rate 0.92): after the fold its tempo feature
+  // and its tempogram's peak are at 125 BPM; every other entry is the same.
+  const double per_entry = std::log2(kTempogramMaxBpm / kTempogramMinBpm) / (kNumTempogram - 1);
+  auto index_of = [&](double bpm) { return std::log2(bpm / kTempogramMinBpm) / per_entry; };
+  std::vector<float> row(kNumFeatures, 3.0f);
+  row[kTempoIndex] = static_cast<float>(std::log2(115.0 / 120.0));
+  for (int i = 0; i < kNumTempogram; ++i) {
+    row[kTempogramBegin + i] = static_cast<float>(std::exp(-0.5 * std::pow((i - index_of(115.0)) / 2.0, 2)));
+  }
+  std::vector<float> folded = row;
+  FoldTempoFeatures(115.0 / 125.0, folded.data());
+  EXPECT_NEAR(120.0 * std::exp2(folded[kTempoIndex]), 125.0, 1e-4);
+  int peak = 0;
+  for (int i = 1; i < kNumTempogram; ++i) {
+    if (folded[kTempogramBegin + i] > folded[kTempogramBegin + peak]) peak = i;
+  }
+  // Parabolic refinement of the peak's position.
+  const double ym = folded[kTempogramBegin + peak - 1], y0 = folded[kTempogramBegin + peak],
+               yp = folded[kTempogramBegin + peak + 1];
+  const double at = peak + 0.5 * (ym - yp) / (ym - 2.0 * y0 + yp);
+  EXPECT_NEAR(at, index_of(125.0), 0.1);
+  EXPECT_GT(index_of(125.0) - index_of(115.0), 2.5);  // (the shift is real: 2.8 entries)
+  for (int i = 0; i < kNumFeatures; ++i) {
+    if (i != kTempoIndex && (i < kTempogramBegin || i >= kTempogramBegin + kNumTempogram)) {
+      EXPECT_EQ(folded[i], 3.0f) << i;
+    }
+  }
+}
+
+TEST(FoldTempo, InterpolatesLinearlyAndClampsAtTheEnds) {
+  const double per_entry = std::log2(kTempogramMaxBpm / kTempogramMinBpm) / (kNumTempogram - 1);
+  std::vector<float> row(kNumFeatures, 0.0f);
+  for (int i = 0; i < kNumTempogram; ++i) row[kTempogramBegin + i] = 0.5f + 0.01f * i;  // linear in the index
+  for (double rate : {0.75, 0.92, 1.0, 1.1, 1.35}) {
+    std::vector<float> f = row;
+    FoldTempoFeatures(rate, f.data());
+    const double shift = std::log2(rate) / per_entry;  // entry i takes the value at i + shift
+    for (int i = 0; i < kNumTempogram; ++i) {
+      const double x = std::clamp(i + shift, 0.0, kNumTempogram - 1.0);
+      EXPECT_NEAR(f[kTempogramBegin + i], 0.5 + 0.01 * x, 1e-6) << "rate " << rate << " entry " << i;
+    }
+    EXPECT_NEAR(f[kTempoIndex], -std::log2(rate), 1e-6);
+  }
+  // Rate 1 changes nothing; a rate that is not a positive number is ignored.
+  for (double rate : {1.0, 0.0, -1.0, std::nan("")}) {
+    std::vector<float> f = row;
+    FoldTempoFeatures(rate, f.data());
+    EXPECT_EQ(f, row) << rate;
   }
 }
 

@@ -750,6 +750,97 @@ TEST(WarpedSession, EachStyleHasItsOwnReferenceTempo) {
               2.0);
 }
 
+TEST(WarpedSession, FoldTempoShowsTheSongAtTheStylesReference) {
+  // time_base.fold_tempo: the tempogram and tempo features of each warped frame are folded with its source
+  // frame's clock rate (audio::FoldTempoFeatures), so a 140 BPM click plays at the waltz's 87 BPM (one
+  // octave down: 70 BPM folded) and then, after a mid-stream style change, at the tango's 128; the rest of
+  // each row is the source frame's, as without the fold.
+  testing::TinyModelOptions o;
+  o.tempo_reference_bpm = 105.0;
+  o.style_reference_bpm = {{"waltz", 87.0}, {"tango", 128.0}};
+  auto plain_model = LoadTinyModel(o);
+  o.fold_tempo = "true";
+  auto fold_model = LoadTinyModel(o);
+  ASSERT_TRUE(fold_model->fold_tempo());
+  EXPECT_FALSE(plain_model->fold_tempo());
+  SessionOptions opt = Opts(4, Sampling(1.0f));
+  opt.style = {{"waltz", 1.0f}};
+  auto fold = MakeSession(fold_model, opt);
+  auto plain = MakeSession(plain_model, opt);
+  const std::vector<float> audio = testing::ClickAudio(12.0, 140.0);
+  const int fps = fold_model->config().frames_per_step;
+  const size_t chunk = 800;
+  int checked = 0, plain_off_reference = 0;
+  std::optional<SessionSnapshot> snap;
+  for (size_t pos = 0; pos + chunk <= audio.size(); pos += chunk) {
+    if (pos == audio.size() / 2 / chunk * chunk) {
+      ASSERT_TRUE(fold->SetStyle({{"tango", 1.0f}}).ok());
+      ASSERT_TRUE(plain->SetStyle({{"tango", 1.0f}}).ok());
+      absl::StatusOr<SessionSnapshot> sn = fold->Snapshot();
+      ASSERT_TRUE(sn.ok());
+      snap = *sn;
+    }
+    ASSERT_TRUE(fold->PushAudio(absl::MakeConstSpan(audio.data() + pos, chunk)).ok());
+    ASSERT_TRUE(plain->PushAudio(absl::MakeConstSpan(audio.data() + pos, chunk)).ok());
+    while (fold->StepsReady() > 0) {
+      ASSERT_GT(plain->StepsReady(), 0);
+      ASSERT_TRUE(fold->Step().ok());
+      ASSERT_TRUE(plain->Step().ok());
+      const std::vector<float>& tf = fold->last_warped_music_token();
+      const std::vector<float>& tp = plain->last_warped_music_token();
+      ASSERT_EQ(tf.size(), static_cast<size_t>(fps * audio::kNumFeatures));
+      for (int f = 0; f < fps; ++f) {
+        const float* rf = tf.data() + f * audio::kNumFeatures;
+        const float* rp = tp.data() + f * audio::kNumFeatures;
+        // The song's tempo and the clock's rate (the tempo the fold removed).
+        const double song_bpm = 120.0 * std::exp2(rp[audio::kTempoIndex]);
+        const double rate = std::exp2(static_cast<double>(rp[audio::kTempoIndex]) - rf[audio::kTempoIndex]);
+        ASSERT_GT(rate, 1.0 / std::sqrt(2.0) / 1.08);
+        ASSERT_LT(rate, std::sqrt(2.0) * 1.08);
+        // The folded tempo is in the reference's octave class: the reference times a power of two.
+        const double ref = snap.has_value() ? 128.0 : 87.0;
+        const double octaves = std::log2(120.0 * std::exp2(rf[audio::kTempoIndex]) / ref);
+        ASSERT_NEAR(octaves, std::round(octaves), 1e-4) << "song at " << song_bpm << " BPM";
+        plain_off_reference += std::fabs(std::log2(song_bpm / ref) - std::round(std::log2(song_bpm / ref))) > 0.05;
+        std::vector<float> expected(rp, rp + audio::kNumFeatures);
+        audio::FoldTempoFeatures(rate, expected.data());
+        for (int i = 0; i < audio::kNumFeatures; ++i) {
+          if (i == audio::kTempoIndex) continue;
+          if (i >= audio::kTempogramBegin && i < audio::kTempogramBegin + audio::kNumTempogram) {
+            ASSERT_NEAR(rf[i], expected[i], 1e-4) << i;
+          } else {
+            ASSERT_EQ(rf[i], rp[i]) << i;
+          }
+        }
+        ++checked;
+      }
+    }
+  }
+  EXPECT_GT(checked, 4 * 80);
+  EXPECT_GT(plain_off_reference, checked / 2);  // unfolded, the click is not at the reference's octaves
+  // A snapshot restored into a new session continues exactly (the rates travel with the warped frames).
+  ASSERT_TRUE(snap.has_value());
+  auto original = MakeSession(fold_model, opt);
+  auto restored = MakeSession(fold_model, opt);
+  ASSERT_TRUE(original->Restore(*snap).ok());
+  ASSERT_TRUE(restored->Restore(*snap).ok());
+  const size_t from = audio.size() / 2 / chunk * chunk;
+  std::vector<float> rest(audio.begin() + from, audio.end());
+  ExpectSameFrames(RunStream(*original, rest, {chunk}), RunStream(*restored, rest, {3 * chunk}));
+  // The metadata key must be a boolean.
+  o.fold_tempo = "1";
+  const std::string path = ::testing::TempDir() + "/bad_fold_tempo.dncw";
+  ASSERT_TRUE(testing::TinyModelWriter(o).WriteFile(path).ok());
+  absl::StatusOr<std::shared_ptr<const Model>> m = LoadModel(path);
+  ASSERT_FALSE(m.ok());
+  EXPECT_TRUE(absl::StrContains(m.status().message(), "fold_tempo must be true or false")) << m.status();
+  o.fold_tempo = "false";
+  ASSERT_TRUE(testing::TinyModelWriter(o).WriteFile(path).ok());
+  m = LoadModel(path);
+  ASSERT_TRUE(m.ok()) << m.status();
+  EXPECT_FALSE((*m)->fold_tempo());
+}
+
 TEST(WarpedSession, BarClockReplacesTheTrackersBarPhase) {
   // Bar clock: 4 beats per bar, waltz 3 (waltz R = 87, tango R = 128). The bar phase of warped frame j is
   // frac(j / L), L = beats * 1800 / R; every other feature is the source frame's, as without the clock.

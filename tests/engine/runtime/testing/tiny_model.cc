@@ -124,6 +124,7 @@ WeightsWriter TinyModelWriter(const TinyModelOptions& o) {
         meta["time_base"]["bar_clock"]["style_beats_per_bar"][name] = beats;
       }
     }
+    if (!o.fold_tempo.empty()) meta["time_base"]["fold_tempo"] = nlohmann::json::parse(o.fold_tempo);
     for (const auto& [name, beats] : o.dance_period_beats) meta["time_base"]["dance_period_beats"][name] = beats;
     if (o.period_lock >= 0.0) meta["time_base"]["period_lock"] = o.period_lock;
     for (const auto& [name, lock] : o.style_period_lock) meta["time_base"]["style_period_lock"][name] = lock;

@@ -37,6 +37,7 @@ struct TinyModelOptions {
   std::vector<std::pair<std::string, double>> style_reference_bpm;  // time_base.style_reference_bpm
   int bar_clock_beats = 0;  // > 0: time_base.bar_clock.beats_per_bar (with tempo_reference_bpm)
   std::vector<std::pair<std::string, int>> style_beats_per_bar;     // time_base.bar_clock.style_beats_per_bar
+  std::string fold_tempo;  // non-empty: time_base.fold_tempo, this JSON text ("true", "false"; others to test errors)
   std::vector<std::pair<std::string, double>> dance_period_beats;   // time_base.dance_period_beats
   double period_lock = -1.0;  // >= 0: time_base.period_lock (the sessions' default lock weight)
   std::vector<std::pair<std::string, double>> style_period_lock;    // time_base.style_period_lock
