@@ -153,3 +153,31 @@ def test_suite_prepares_a_missing_motion_cache_once_before_the_draws(tmp_path, m
   with pytest.raises(Stop):
     es.main(["--model", "m.dncw", "--out-dir", str(tmp_path / "out"), "--draws", "3", "--tempo-seeds", "2"])
   assert events == ["prepare", "run 3", "run 2"]
+
+
+def test_summary_scores_the_draws_on_the_real_dances_spans(tmp_path, monkeypatch):
+  # With the draws' dance files present the summary adds FID/Div on the real dances' song spans
+  # (evaluate.on_real_spans); here a synthetic evaluator whose real dances are a song's 20 s from 10 s.
+  import numpy as np
+
+  from tests.training.test_eval_metrics import _dance
+  from training.eval import evaluate
+  real = [evaluate.Dance(n, _dance(seed=i, seconds=20), audio_offset_s=10.0) for i, n in enumerate(("a", "b"))]
+  ev = evaluate.Evaluator([evaluate.Dance(f"r{i}", _dance(seed=10 + i, seconds=30)) for i in range(4)], real)
+  monkeypatch.setattr(evaluate.Evaluator, "default", classmethod(lambda cls: ev))
+  whole = {n: _dance(seed=20 + i, seconds=60) for i, n in enumerate(("a", "b"))}
+  monkeypatch.setattr(evaluate, "load_dance", lambda p: evaluate.Dance("x", whole[pathlib.Path(p).stem]))
+  (tmp_path / "s0" / "dances").mkdir(parents=True)
+  (tmp_path / "s0" / "metrics.json").write_text(json.dumps(_metrics(10.0, 8.0)))
+  for n in whole:
+    (tmp_path / "s0" / "dances" / f"{n}.json").write_text("{}")
+  s = es.summarize(tmp_path)
+  spans = s["real_spans"]
+  cut = [evaluate.Dance(n, whole[n][300:900]) for n in ("a", "b")]
+  assert spans["draws"][0] == ev.fid_div(cut) and spans["draws"][0]["segments"] == 4
+  assert spans["real"] == ev.fid_div(real) and spans["mean"]["fid_k"] == spans["draws"][0]["fid_k"]
+  assert "On the real dances' spans" in es.markdown(s, "m")
+  # A draw missing a real dance's song: no span scores (rather than a FID over other segments).
+  (tmp_path / "s0" / "dances" / "b.json").unlink()
+  assert "real_spans" not in es.summarize(tmp_path)
+  assert np.isfinite(s["draw_mean"]["fid_k"])

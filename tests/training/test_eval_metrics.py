@@ -311,3 +311,24 @@ def test_style_reach_is_one_for_the_reference_and_zero_for_a_blend():
   half = np.concatenate([ref[:20] * 0.5 + ref.mean(0) * 0.5, rng.normal(0, 1, (5, 4))])
   got = style_reach(ref, rows, half, rows[:20] + [{"dance": "tang_DANCE_X_1"}] * 5)
   assert got == pytest.approx({"C": 0.5})
+
+
+def test_on_real_spans_cuts_each_dance_to_its_real_counterparts_song_time():
+  # The real dance covers song time 14.9 s .. 14.9 + 20 s; the generated one the whole song from 0.133 s.
+  real = [evaluate.Dance("a", _dance(seed=1, seconds=20), audio_offset_s=14.9),
+          evaluate.Dance("b", _dance(seed=2, seconds=30), audio_offset_s=0.0)]
+  gen_a = _dance(seed=3, seconds=60)
+  gen = [evaluate.Dance("b", _dance(seed=4, seconds=25), audio_offset_s=0.133),
+         evaluate.Dance("a", gen_a, audio_offset_s=0.133)]
+  cut = {d.name: d for d in evaluate.on_real_spans(gen, real)}
+  a0 = int(round((14.9 - 0.133) * 30))
+  np.testing.assert_array_equal(cut["a"].positions, gen_a[a0:a0 + 600])
+  assert cut["a"].audio_offset_s == pytest.approx(0.133 + a0 / 30)
+  # A real span starting before the generated dance starts where the generated one does; a generated dance
+  # that ends first keeps what it has.
+  assert len(cut["b"].positions) == 25 * 30 and cut["b"].audio_offset_s == pytest.approx(0.133)
+  with pytest.raises(ValueError, match="no real dance named c"):
+    evaluate.on_real_spans([evaluate.Dance("c", gen_a)], real)
+  # The real dances on their own spans are themselves: their FID against a reference is unchanged.
+  ev = evaluate.Evaluator(real + [evaluate.Dance(f"r{i}", _dance(seed=10 + i, seconds=30)) for i in range(4)], real)
+  assert ev.fid_div(evaluate.on_real_spans(real, real))["fid_k"] == pytest.approx(ev.evaluate(real)["fid_k"])

@@ -4,7 +4,8 @@ songs, against the real dances and the baselines (training.eval.evaluate), plus 
     .venv/bin/python -m training.eval.engine_eval --model models/default.dncw --out-dir training/runs/X/engine
         [--seed 0] [--temperature 1] [--guidance W] [--top-p P] [--period-lock B] [--songs ID,ID --fill-from D0]
 
-Writes <out-dir>/dances/<id>.json (dance-motion/v1 from dance-generate), metrics.md, metrics.json and
+Writes <out-dir>/dances/<id>.json (dance-motion/v1 from dance-generate), metrics.md, metrics.json (the model's
+row over the whole songs and over the real dances' spans, evaluate.on_real_spans; the real rows) and
 strip_<id>.png / beats_<id>.png for the first two songs. With --songs, only those songs are generated and the
 other validation songs' dances are read from D0/s<seed>/dances/ (an earlier suite's draw of the same seed;
 training.eval.engine_suite --songs). Needs librosa's beat cache (the project .venv).
@@ -45,7 +46,7 @@ def generate_song(model: str, mid: str, out: pathlib.Path, seed: int, temperatur
 
 
 def main(argv=None) -> None:
-  from training.eval.evaluate import Dance, Evaluator, load_dance, markdown_table
+  from training.eval.evaluate import Dance, Evaluator, load_dance, markdown_table, on_real_spans
   from training.eval.metrics import joint_speed, motion_beats
   from training.eval.render import render_beats, render_strip
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -84,7 +85,9 @@ def main(argv=None) -> None:
     d = load_dance(path, audio=str(z["audio_path"]))  # audio_offset_s: the song time of the first frame
     dances.append(Dance(mid, d.positions, d.fps, d.audio_path, d.audio_offset_s, str(z["style"])))
   ev = Evaluator.default()
-  rows = {"model (engine)": ev.evaluate(dances)}
+  rows = {"model (engine)": ev.evaluate(dances),
+          # The same dances cut to the real dances' song spans: the real row's segments, song for song.
+          "model (engine), real spans": ev.evaluate(on_real_spans(dances, ev.validation))}
   rows.update(ev.baselines())
   table = markdown_table(rows)
   (out / "metrics.md").write_text(table)

@@ -24,6 +24,7 @@ s.e. of ~0.1 on 8 seeds. Compare models on this suite, not on one run.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import pathlib
 import re
@@ -113,6 +114,30 @@ def tempo_reports(out: pathlib.Path, fill_from: pathlib.Path | None) -> list[dic
   return reports + filled
 
 
+SPAN_METRICS = ("fid_k", "fid_g", "div_k", "div_g")
+
+
+def span_scores(out: pathlib.Path, draws) -> dict | None:
+  """FID and Div of each draw's dances cut to the real validation dances' song spans
+  (evaluate.on_real_spans: the real row's segments, song for song), beside the real row's; None when a draw
+  has no dance files (a summary of metrics.json files alone)."""
+  from training.eval.evaluate import Evaluator, load_dance, on_real_spans
+  dirs = {s: out / f"s{s}" / "dances" for s in draws}
+  if not dirs or any(not d.is_dir() or not any(d.glob("*.json")) for d in dirs.values()):
+    return None
+  ev = Evaluator.default()
+  names = {d.name for d in ev.validation}
+  scores = {}
+  for s, d in dirs.items():
+    dances = [load_dance(p) for p in sorted(d.glob("*.json"))]
+    dances = [dataclasses.replace(x, name=p.stem) for x, p in zip(dances, sorted(d.glob("*.json")))]
+    if {x.name for x in dances} != names:
+      return None
+    scores[s] = ev.fid_div(on_real_spans(dances, ev.validation))
+  return {"draws": scores, "mean": {k: float(np.mean([v[k] for v in scores.values()])) for k in SPAN_METRICS},
+          "real": ev.fid_div(ev.validation)}
+
+
 def summarize(out: pathlib.Path, fill_from: pathlib.Path | None = None) -> dict:
   """Aggregates D/s*/metrics.json and D/tempo_*.json (whatever exists; with fill_from, the tempo runs of the
   songs D did not run come from there)."""
@@ -123,6 +148,9 @@ def summarize(out: pathlib.Path, fill_from: pathlib.Path | None = None) -> dict:
     draws[int(path.parent.name[1:])] = {k: rows[MODEL_ROW][k] for k in METRICS}
     real = {k: rows["real (validation)"][k] for k in METRICS}
   summary: dict = {"draws": draws}
+  spans = span_scores(out, sorted(draws)) if draws else None
+  if spans:
+    summary["real_spans"] = spans
   if draws:
     summary["draw_mean"] = {k: float(np.mean([d[k] for d in draws.values()])) for k in METRICS}
     # The issue's diversity band: within 20 % of the real dances' on every draw.
@@ -172,6 +200,17 @@ def markdown(summary: dict, model: str) -> str:
     lines.append("| **mean** | " + " | ".join(f"{summary['draw_mean'][k]:.4g}" for k in METRICS) + " |")
     lines.append("| real (validation) | " + " | ".join(f"{summary['real'][k]:.4g}" for k in METRICS) + " |")
     lines += ["", f"Div_k and Div_g within 20 % of real on every draw: {summary['div_inside_20pct']}", ""]
+    sp = summary.get("real_spans")
+    if sp:
+      n = sp["real"]["segments"]
+      lines += [f"On the real dances' spans (each draw cut to the song time the real dance covers: {n} segments, "
+                "song for song, as the real row; evaluate.on_real_spans):", "",
+                "| draw | " + " | ".join(SPAN_METRICS) + " |", "|---" * (len(SPAN_METRICS) + 1) + "|"]
+      for s, d in sp["draws"].items():
+        lines.append(f"| seed {s} | " + " | ".join(f"{d[k]:.4g}" for k in SPAN_METRICS) + " |")
+      lines.append("| **mean** | " + " | ".join(f"{sp['mean'][k]:.4g}" for k in SPAN_METRICS) + " |")
+      lines.append("| real (validation) | " + " | ".join(f"{sp['real'][k]:.4g}" for k in SPAN_METRICS) + " |")
+      lines.append("")
   t = summary.get("tempo")
   if t:
     def num(x) -> str:  # None: too few runs for it (one run has no s.e.; no pooled or calibration rows)

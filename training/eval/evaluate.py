@@ -145,6 +145,24 @@ def beat_lock(dance: Dance, beats: np.ndarray) -> dict:
   return out
 
 
+def on_real_spans(dances: list[Dance], real: list[Dance]) -> list[Dance]:
+  """Each dance cut to the song time its real counterpart (same name) covers: from the real dance's
+  audio_offset_s, as many frames as it has (fewer where the generated dance ends first). A generated dance
+  covers the whole song, the real one a part of it (T_5_b: 26 s of a 109-s song), so the whole-song sets
+  have about three times as many 10-s segments as the real validation, in other proportions per song; cut
+  to the real spans both have the same segments, song for song, and a FID compares like with like."""
+  by_name = {r.name: r for r in real}
+  out = []
+  for d in dances:
+    if d.name not in by_name:
+      raise ValueError(f"on_real_spans: no real dance named {d.name}")
+    r = by_name[d.name]
+    a = max(0, int(round((r.audio_offset_s - d.audio_offset_s) * d.fps)))
+    out.append(Dance(d.name, d.positions[a:a + len(r.positions)], d.fps, d.audio_path,
+                     d.audio_offset_s + a / d.fps, d.style))
+  return out
+
+
 class Evaluator:
   """Holds the reference (real training) features and the normaliser (real validation statistics)."""
 
@@ -180,6 +198,13 @@ class Evaluator:
             "pfc": mean("pfc"), "jitter": mean("jitter"), "turn_rate": mean("turn_rate"), "spin": mean("spin"),
             "foot_skate": mean("foot_skate"), "contact": mean("contact"), "bone_err_mm": mean("bone_err_mm"),
             "bone_cv_pct": mean("bone_cv_pct"), "segments": len(rows)}
+
+  def fid_div(self, dances: list[Dance]) -> dict:
+    """FID_k, FID_g, Div_k, Div_g and the segment count alone (no beats: needs no music analysis)."""
+    t = segment_table(dances, beats_of=lambda d: np.zeros(0))
+    k, g = self.norm_k.apply(t["kinetic"]), self.norm_g.apply(t["geometric"])
+    return {"fid_k": metrics.frechet_distance(self.ref_k, k), "fid_g": metrics.frechet_distance(self.ref_g, g),
+            "div_k": metrics.diversity(k), "div_g": metrics.diversity(g), "segments": len(k)}
 
   def baselines(self) -> dict[str, dict]:
     val = self.validation
