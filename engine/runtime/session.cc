@@ -596,7 +596,8 @@ int64_t Session::StateBytes() const {
   n += static_cast<int64_t>(code_history_.size() * sizeof(code_history_[0]) +
                             heading_history_.size() * sizeof(double) + lock_sim_.size() * sizeof(float) +
                             lock_seen_.capacity());
-  n += static_cast<int64_t>(warp_.source.size() * (sizeof(int64_t) + sizeof(double)) + warp_.starts.size() * sizeof(double) +
+  n += static_cast<int64_t>(warp_.source.size() * (sizeof(int64_t) + sizeof(double)) +
+                            warp_.starts.size() * sizeof(double) +
                             warp_.poses.size() * (sizeof(warp_.poses[0]) + sizeof(warp_.pose_codes[0])));
   return n;
 }
