@@ -177,7 +177,12 @@ def test_summary_scores_the_draws_on_the_real_dances_spans(tmp_path, monkeypatch
   assert spans["draws"][0] == ev.fid_div(cut) and spans["draws"][0]["segments"] == 4
   assert spans["real"] == ev.fid_div(real) and spans["mean"]["fid_k"] == spans["draws"][0]["fid_k"]
   assert "On the real dances' spans" in es.markdown(s, "m")
-  # A draw missing a real dance's song: no span scores (rather than a FID over other segments).
+  # A draw missing a real dance's song: no span scores (rather than a FID over other segments) ...
   (tmp_path / "s0" / "dances" / "b.json").unlink()
   assert "real_spans" not in es.summarize(tmp_path)
+  # ... unless a --songs suite takes it from the suite it was filled from (same seed).
+  base = tmp_path / "base"
+  (base / "s0" / "dances").mkdir(parents=True)
+  (base / "s0" / "dances" / "b.json").write_text("{}")
+  assert es.span_scores(tmp_path, [0], base)["draws"][0] == ev.fid_div(cut)
   assert np.isfinite(s["draw_mean"]["fid_k"])

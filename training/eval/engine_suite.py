@@ -117,10 +117,11 @@ def tempo_reports(out: pathlib.Path, fill_from: pathlib.Path | None) -> list[dic
 SPAN_METRICS = ("fid_k", "fid_g", "div_k", "div_g")
 
 
-def span_scores(out: pathlib.Path, draws) -> dict | None:
+def span_scores(out: pathlib.Path, draws, fill_from: pathlib.Path | None = None) -> dict | None:
   """FID and Div of each draw's dances cut to the real validation dances' song spans
-  (evaluate.on_real_spans: the real row's segments, song for song), beside the real row's; None when a draw
-  has no dance files (a summary of metrics.json files alone)."""
+  (evaluate.on_real_spans: the real row's segments, song for song), beside the real row's; with fill_from
+  (a --songs suite) the songs a draw did not generate come from fill_from's draw of the same seed. None when
+  a draw has no dance files (a summary of metrics.json files alone) or lacks a validation song."""
   from training.eval.evaluate import Evaluator, load_dance, on_real_spans
   dirs = {s: out / f"s{s}" / "dances" for s in draws}
   if not dirs or any(not d.is_dir() or not any(d.glob("*.json")) for d in dirs.values()):
@@ -129,8 +130,9 @@ def span_scores(out: pathlib.Path, draws) -> dict | None:
   names = {d.name for d in ev.validation}
   scores = {}
   for s, d in dirs.items():
-    dances = [load_dance(p) for p in sorted(d.glob("*.json"))]
-    dances = [dataclasses.replace(x, name=p.stem) for x, p in zip(dances, sorted(d.glob("*.json")))]
+    paths = {p.stem: p for p in (fill_from / f"s{s}" / "dances").glob("*.json")} if fill_from else {}
+    paths.update({p.stem: p for p in d.glob("*.json")})
+    dances = [dataclasses.replace(load_dance(p), name=n) for n, p in sorted(paths.items())]
     if {x.name for x in dances} != names:
       return None
     scores[s] = ev.fid_div(on_real_spans(dances, ev.validation))
@@ -148,7 +150,7 @@ def summarize(out: pathlib.Path, fill_from: pathlib.Path | None = None) -> dict:
     draws[int(path.parent.name[1:])] = {k: rows[MODEL_ROW][k] for k in METRICS}
     real = {k: rows["real (validation)"][k] for k in METRICS}
   summary: dict = {"draws": draws}
-  spans = span_scores(out, sorted(draws)) if draws else None
+  spans = span_scores(out, sorted(draws), fill_from) if draws else None
   if spans:
     summary["real_spans"] = spans
   if draws:
