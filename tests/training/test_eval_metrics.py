@@ -332,3 +332,19 @@ def test_on_real_spans_cuts_each_dance_to_its_real_counterparts_song_time():
   # The real dances on their own spans are themselves: their FID against a reference is unchanged.
   ev = evaluate.Evaluator(real + [evaluate.Dance(f"r{i}", _dance(seed=10 + i, seconds=30)) for i in range(4)], real)
   assert ev.fid_div(evaluate.on_real_spans(real, real))["fid_k"] == pytest.approx(ev.evaluate(real)["fid_k"])
+
+
+def test_leave_one_out_removes_each_song_from_both_sides():
+  from training.eval.fid_parts import leave_one_out
+  real = [evaluate.Dance(n, _dance(seed=i, seconds=30, period=0.8 + 0.1 * i)) for i, n in enumerate("abc")]
+  ev = evaluate.Evaluator([evaluate.Dance(f"r{i}", _dance(seed=10 + i, seconds=30)) for i in range(5)], real)
+  val = evaluate.segment_table(real, beats_of=lambda d: np.zeros(0))
+  gen = [evaluate.Dance(n, _dance(seed=20 + i, seconds=30, period=1.3)) for i, n in enumerate("abc")]
+  draws = [evaluate.segment_table(gen, beats_of=lambda d: np.zeros(0))]
+  rows = {r["without"]: r for r in leave_one_out(ev, val, draws)}
+  assert list(rows) == ["none", "a", "b", "c"]
+  assert rows["none"]["real_k"] == pytest.approx(ev.evaluate(real)["fid_k"])
+  assert rows["none"]["model_k"] == pytest.approx(ev.fid_div(gen)["fid_k"])
+  assert rows["b"]["real_g"] == pytest.approx(ev.fid_div([real[0], real[2]])["fid_g"])
+  assert rows["b"]["model_k"] == pytest.approx(ev.fid_div([gen[0], gen[2]])["fid_k"])
+  assert rows["b"]["excess_k"] == pytest.approx(rows["b"]["model_k"] - rows["b"]["real_k"])

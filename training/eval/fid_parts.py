@@ -3,15 +3,21 @@ dimensions whose averages differ most from the real training dances', per style 
 energy of the torso and wrists and the turn rate, and per style its reach (style_reach), for dance sets
 beside the real validation dances.
 
-    /usr/bin/python3 -m training.eval.fid_parts D/s0/dances [D/s1/dances ...] [--top 12]
+    /usr/bin/python3 -m training.eval.fid_parts D/s0/dances [D/s1/dances ...] [--top 12] [--spans]
+        [--leave-one-out]
 
 Each argument is a directory of dance JSON files (an engine_eval draw's `dances/`); all of them are pooled
 for the per-style table and the top dimensions, and each gets its own FID_k split. The split uses the same
 features, normaliser and reference as training.eval.evaluate (so FID_k equals engine_eval's).
+--spans cuts every dance to the song time its real counterpart covers first (evaluate.on_real_spans: the
+real row's segments, song for song). --leave-one-out adds, per validation song, the FID_k and FID_g of the
+real validation and of the dances (mean over the directories) without that song, and their excess over
+real: which songs the excess comes from.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import glob
 import pathlib
 
@@ -19,7 +25,7 @@ import numpy as np
 
 from training.data.skeleton import JOINT_NAMES
 from training.eval import metrics
-from training.eval.evaluate import Evaluator, load_dance, segment_table
+from training.eval.evaluate import Evaluator, load_dance, on_real_spans, segment_table
 
 KINDS = ("ke_h", "ke_v", "ee")  # features.kinetic_features: per joint, in this order
 STYLE_JOINTS = ("spine3", "neck", "head", "left_wrist", "left_knee")
@@ -61,22 +67,46 @@ def style_reach(ref: np.ndarray, ref_rows: list, x: np.ndarray, rows: list) -> d
   return out
 
 
+def leave_one_out(ev, val: dict, draws: list[dict]) -> list[dict]:
+  """Per song (and "none" first), FID_k / FID_g of the real validation segments and the mean over `draws`
+  (segment tables) without that song's segments."""
+  def names(t):
+    return np.array([r["dance"] for r in t["rows"]])
+  def fids(t, song):
+    keep = names(t) != song
+    return (metrics.frechet_distance(ev.ref_k, ev.norm_k.apply(t["kinetic"][keep])),
+            metrics.frechet_distance(ev.ref_g, ev.norm_g.apply(t["geometric"][keep])))
+  out = []
+  for song in ["none"] + sorted(set(names(val))):
+    rk, rg = fids(val, song)
+    gk, gg = np.mean([fids(t, song) for t in draws], axis=0)
+    out.append({"without": song, "real_k": rk, "real_g": rg, "model_k": float(gk), "model_g": float(gg),
+                "excess_k": float(gk - rk), "excess_g": float(gg - rg)})
+  return out
+
+
 def main(argv=None) -> None:
   ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
   ap.add_argument("dirs", nargs="+", help="directories of dance JSON files")
   ap.add_argument("--top", type=int, default=12, help="how many kinetic dimensions to list")
+  ap.add_argument("--spans", action="store_true", help="cut each dance to its real counterpart's song span")
+  ap.add_argument("--leave-one-out", action="store_true", help="FID without each validation song in turn")
   args = ap.parse_args(argv)
   ev = Evaluator.default()
   val = segment_table(ev.validation, beats_of=_no_beats)
   vk = ev.norm_k.apply(val["kinetic"])
   m, c = metrics.frechet_parts(ev.ref_k, vk)
   print(f"real (validation): FID_k {m + c:.2f} = mean term {m:.2f} + covariance term {c:.2f} ({len(vk)} segments)")
-  pooled, raw, rows = [], [], []
+  pooled, raw, rows, tables = [], [], [], []
   for d in args.dirs:
-    dances = [load_dance(p) for p in sorted(glob.glob(str(pathlib.Path(d) / "*.json")))]
+    files = sorted(glob.glob(str(pathlib.Path(d) / "*.json")))
+    dances = [dataclasses.replace(load_dance(p), name=pathlib.Path(p).stem) for p in files]
     if not dances:
       raise SystemExit(f"fid_parts: no dance JSON files in {d}")
+    if args.spans:
+      dances = on_real_spans(dances, ev.validation)
     t = segment_table(dances, beats_of=_no_beats)
+    tables.append(t)
     k = ev.norm_k.apply(t["kinetic"])
     m, c = metrics.frechet_parts(ev.ref_k, k)
     print(f"{d}: FID_k {m + c:.2f} = mean term {m:.2f} + covariance term {c:.2f} ({len(k)} segments)")
@@ -99,6 +129,11 @@ def main(argv=None) -> None:
   print("\nstyle reach (kinetic; 1 = as distinct as the real training dances of the style, 0 = blended): " +
         ", ".join(f"{st} {reach_gen[st]:.2f} (real validation {reach_val.get(st, float('nan')):.2f})"
                   for st in reach_gen))
+  if args.leave_one_out:
+    print("\nleaving one validation song out of both sides (model: mean over the directories):")
+    for r in leave_one_out(ev, val, tables):
+      print(f"  without {r['without']:<18} FID_k real {r['real_k']:6.2f} model {r['model_k']:6.2f} excess "
+            f"{r['excess_k']:+6.2f} | FID_g real {r['real_g']:5.2f} model {r['model_g']:5.2f} excess {r['excess_g']:+5.2f}")
   print(f"\nper style: horizontal kinetic energy (m^2/s^2) of {', '.join(STYLE_JOINTS)}; turn rate (rad/s)")
   for label, table in (("real", val), ("generated", gen)):
     for style, v in per_style(table).items():
