@@ -166,7 +166,8 @@ def test_summary_scores_the_draws_on_the_real_dances_spans(tmp_path, monkeypatch
   ev = evaluate.Evaluator([evaluate.Dance(f"r{i}", _dance(seed=10 + i, seconds=30)) for i in range(4)], real)
   monkeypatch.setattr(evaluate.Evaluator, "default", classmethod(lambda cls: ev))
   whole = {n: _dance(seed=20 + i, seconds=60) for i, n in enumerate(("a", "b"))}
-  monkeypatch.setattr(evaluate, "load_dance", lambda p: evaluate.Dance("x", whole[pathlib.Path(p).stem]))
+  monkeypatch.setattr(evaluate, "load_dance",
+                      lambda p: evaluate.Dance(pathlib.Path(p).stem, whole[pathlib.Path(p).stem]))
   (tmp_path / "s0" / "dances").mkdir(parents=True)
   (tmp_path / "s0" / "metrics.json").write_text(json.dumps(_metrics(10.0, 8.0)))
   for n in whole:

@@ -24,7 +24,6 @@ s.e. of ~0.1 on 8 seeds. Compare models on this suite, not on one run.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import pathlib
 import re
@@ -132,7 +131,7 @@ def span_scores(out: pathlib.Path, draws, fill_from: pathlib.Path | None = None)
   for s, d in dirs.items():
     paths = {p.stem: p for p in (fill_from / f"s{s}" / "dances").glob("*.json")} if fill_from else {}
     paths.update({p.stem: p for p in d.glob("*.json")})
-    dances = [dataclasses.replace(load_dance(p), name=n) for n, p in sorted(paths.items())]
+    dances = [load_dance(p) for _, p in sorted(paths.items())]  # named by their files' stems
     if {x.name for x in dances} != names:
       return None
     scores[s] = ev.fid_div(on_real_spans(dances, ev.validation))

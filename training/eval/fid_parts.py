@@ -17,7 +17,6 @@ real: which songs the excess comes from.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import glob
 import pathlib
 
@@ -100,7 +99,7 @@ def main(argv=None) -> None:
   pooled, raw, rows, tables = [], [], [], []
   for d in args.dirs:
     files = sorted(glob.glob(str(pathlib.Path(d) / "*.json")))
-    dances = [dataclasses.replace(load_dance(p), name=pathlib.Path(p).stem) for p in files]
+    dances = [load_dance(p) for p in files]
     if not dances:
       raise SystemExit(f"fid_parts: no dance JSON files in {d}")
     if args.spans:

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <optional>
 #include <random>
 #include <set>
@@ -750,6 +751,46 @@ TEST(WarpedSession, EachStyleHasItsOwnReferenceTempo) {
               2.0);
 }
 
+// Two sessions fed the same audio in lockstep, 800 samples at a time, both switched to tango halfway (from
+// the next step on): on_step(token_a, token_b, tango) sees their last warped music tokens after every step.
+// Returns `a`'s snapshot, taken right after the switch.
+constexpr size_t kLockstepChunk = 800;
+
+size_t LockstepSwitch(const std::vector<float>& audio) {
+  return audio.size() / 2 / kLockstepChunk * kLockstepChunk;
+}
+
+std::optional<SessionSnapshot> StepInLockstep(
+    Session& a, Session& b, const std::vector<float>& audio,
+    const std::function<void(const std::vector<float>&, const std::vector<float>&, bool)>& on_step) {
+  std::optional<SessionSnapshot> snap;
+  for (size_t pos = 0; pos + kLockstepChunk <= audio.size(); pos += kLockstepChunk) {
+    if (pos == LockstepSwitch(audio)) {
+      EXPECT_TRUE(a.SetStyle({{"tango", 1.0f}}).ok());
+      EXPECT_TRUE(b.SetStyle({{"tango", 1.0f}}).ok());
+      absl::StatusOr<SessionSnapshot> s = a.Snapshot();
+      if (!s.ok()) {
+        ADD_FAILURE() << s.status();
+        return std::nullopt;
+      }
+      snap = *s;
+    }
+    const bool tango = snap.has_value();
+    EXPECT_TRUE(a.PushAudio(absl::MakeConstSpan(audio.data() + pos, kLockstepChunk)).ok());
+    EXPECT_TRUE(b.PushAudio(absl::MakeConstSpan(audio.data() + pos, kLockstepChunk)).ok());
+    while (a.StepsReady() > 0) {
+      if (b.StepsReady() <= 0) {
+        ADD_FAILURE() << "the second session has no step ready where the first has";
+        return std::nullopt;
+      }
+      EXPECT_TRUE(a.Step().ok());
+      EXPECT_TRUE(b.Step().ok());
+      on_step(a.last_warped_music_token(), b.last_warped_music_token(), tango);
+    }
+  }
+  return snap;
+}
+
 TEST(WarpedSession, FoldTempoShowsTheSongAtTheStylesReference) {
   // time_base.fold_tempo: the tempogram and tempo features of each warped frame are folded with its source
   // frame's clock rate (audio::FoldTempoFeatures), so a 140 BPM click plays at the waltz's 87 BPM (one
@@ -769,53 +810,39 @@ TEST(WarpedSession, FoldTempoShowsTheSongAtTheStylesReference) {
   auto plain = MakeSession(plain_model, opt);
   const std::vector<float> audio = testing::ClickAudio(12.0, 140.0);
   const int fps = fold_model->config().frames_per_step;
-  const size_t chunk = 800;
   int checked = 0, plain_off_reference = 0;
-  std::optional<SessionSnapshot> snap;
-  for (size_t pos = 0; pos + chunk <= audio.size(); pos += chunk) {
-    if (pos == audio.size() / 2 / chunk * chunk) {
-      ASSERT_TRUE(fold->SetStyle({{"tango", 1.0f}}).ok());
-      ASSERT_TRUE(plain->SetStyle({{"tango", 1.0f}}).ok());
-      absl::StatusOr<SessionSnapshot> sn = fold->Snapshot();
-      ASSERT_TRUE(sn.ok());
-      snap = *sn;
-    }
-    ASSERT_TRUE(fold->PushAudio(absl::MakeConstSpan(audio.data() + pos, chunk)).ok());
-    ASSERT_TRUE(plain->PushAudio(absl::MakeConstSpan(audio.data() + pos, chunk)).ok());
-    while (fold->StepsReady() > 0) {
-      ASSERT_GT(plain->StepsReady(), 0);
-      ASSERT_TRUE(fold->Step().ok());
-      ASSERT_TRUE(plain->Step().ok());
-      const std::vector<float>& tf = fold->last_warped_music_token();
-      const std::vector<float>& tp = plain->last_warped_music_token();
-      ASSERT_EQ(tf.size(), static_cast<size_t>(fps * audio::kNumFeatures));
-      for (int f = 0; f < fps; ++f) {
-        const float* rf = tf.data() + f * audio::kNumFeatures;
-        const float* rp = tp.data() + f * audio::kNumFeatures;
-        // The song's tempo and the clock's rate (the tempo the fold removed).
-        const double song_bpm = 120.0 * std::exp2(rp[audio::kTempoIndex]);
-        const double rate = std::exp2(static_cast<double>(rp[audio::kTempoIndex]) - rf[audio::kTempoIndex]);
-        ASSERT_GT(rate, 1.0 / std::sqrt(2.0) / 1.08);
-        ASSERT_LT(rate, std::sqrt(2.0) * 1.08);
-        // The folded tempo is in the reference's octave class: the reference times a power of two.
-        const double ref = snap.has_value() ? 128.0 : 87.0;
-        const double octaves = std::log2(120.0 * std::exp2(rf[audio::kTempoIndex]) / ref);
-        ASSERT_NEAR(octaves, std::round(octaves), 1e-4) << "song at " << song_bpm << " BPM";
-        plain_off_reference += std::fabs(std::log2(song_bpm / ref) - std::round(std::log2(song_bpm / ref))) > 0.05;
-        std::vector<float> expected(rp, rp + audio::kNumFeatures);
-        audio::FoldTempoFeatures(rate, expected.data());
-        for (int i = 0; i < audio::kNumFeatures; ++i) {
-          if (i == audio::kTempoIndex) continue;
-          if (i >= audio::kTempogramBegin && i < audio::kTempogramBegin + audio::kNumTempogram) {
-            ASSERT_NEAR(rf[i], expected[i], 1e-4) << i;
-          } else {
-            ASSERT_EQ(rf[i], rp[i]) << i;
+  const std::optional<SessionSnapshot> snap = StepInLockstep(
+      *fold, *plain, audio,
+      [&](const std::vector<float>& tf, const std::vector<float>& tp, bool tango) {
+        ASSERT_EQ(tf.size(), static_cast<size_t>(fps * audio::kNumFeatures));
+        for (int f = 0; f < fps; ++f) {
+          const float* rf = tf.data() + f * audio::kNumFeatures;
+          const float* rp = tp.data() + f * audio::kNumFeatures;
+          // The song's tempo and the clock's rate (the tempo the fold removed).
+          const double song_bpm = 120.0 * std::exp2(rp[audio::kTempoIndex]);
+          const double rate =
+              std::exp2(static_cast<double>(rp[audio::kTempoIndex]) - rf[audio::kTempoIndex]);
+          ASSERT_GT(rate, 1.0 / std::sqrt(2.0) / 1.08);
+          ASSERT_LT(rate, std::sqrt(2.0) * 1.08);
+          // The folded tempo is in the reference's octave class: the reference times a power of 2.
+          const double ref = tango ? 128.0 : 87.0;
+          const double octaves = std::log2(120.0 * std::exp2(rf[audio::kTempoIndex]) / ref);
+          ASSERT_NEAR(octaves, std::round(octaves), 1e-4) << "song at " << song_bpm << " BPM";
+          plain_off_reference +=
+              std::fabs(std::log2(song_bpm / ref) - std::round(std::log2(song_bpm / ref))) > 0.05;
+          std::vector<float> expected(rp, rp + audio::kNumFeatures);
+          audio::FoldTempoFeatures(rate, expected.data());
+          for (int i = 0; i < audio::kNumFeatures; ++i) {
+            if (i == audio::kTempoIndex) continue;
+            if (i >= audio::kTempogramBegin && i < audio::kTempogramBegin + audio::kNumTempogram) {
+              ASSERT_NEAR(rf[i], expected[i], 1e-4) << i;
+            } else {
+              ASSERT_EQ(rf[i], rp[i]) << i;
+            }
           }
+          ++checked;
         }
-        ++checked;
-      }
-    }
-  }
+      });
   EXPECT_GT(checked, 4 * 80);
   EXPECT_GT(plain_off_reference, checked / 2);  // unfolded, the click is not at the reference's octaves
   // A snapshot restored into a new session continues exactly (the rates travel with the warped frames).
@@ -824,9 +851,8 @@ TEST(WarpedSession, FoldTempoShowsTheSongAtTheStylesReference) {
   auto restored = MakeSession(fold_model, opt);
   ASSERT_TRUE(original->Restore(*snap).ok());
   ASSERT_TRUE(restored->Restore(*snap).ok());
-  const size_t from = audio.size() / 2 / chunk * chunk;
-  std::vector<float> rest(audio.begin() + from, audio.end());
-  ExpectSameFrames(RunStream(*original, rest, {chunk}), RunStream(*restored, rest, {3 * chunk}));
+  std::vector<float> rest(audio.begin() + LockstepSwitch(audio), audio.end());
+  ExpectSameFrames(RunStream(*original, rest, {kLockstepChunk}), RunStream(*restored, rest, {3 * kLockstepChunk}));
   // The metadata key must be a boolean.
   o.fold_tempo = "1";
   const std::string path = ::testing::TempDir() + "/bad_fold_tempo.dncw";
@@ -861,46 +887,32 @@ TEST(WarpedSession, BarClockReplacesTheTrackersBarPhase) {
   auto plain = MakeSession(plain_model, opt);
   const std::vector<float> audio = testing::ClickAudio(8.0, 140.0);
   const int fps = bar_model->config().frames_per_step;
-  const size_t chunk = 800;
   int checked = 0, tracker_differs = 0;
-  std::optional<SessionSnapshot> snap;
-  for (size_t pos = 0; pos + chunk <= audio.size(); pos += chunk) {
-    if (pos == audio.size() / 2 / chunk * chunk) {
-      // Mid-stream style change: tango's metre and reference from the next step on; then a snapshot.
-      ASSERT_TRUE(bar->SetStyle({{"tango", 1.0f}}).ok());
-      ASSERT_TRUE(plain->SetStyle({{"tango", 1.0f}}).ok());
-      absl::StatusOr<SessionSnapshot> s = bar->Snapshot();
-      ASSERT_TRUE(s.ok());
-      snap = *s;
-    }
-    const bool tango = snap.has_value();
-    ASSERT_TRUE(bar->PushAudio(absl::MakeConstSpan(audio.data() + pos, chunk)).ok());
-    ASSERT_TRUE(plain->PushAudio(absl::MakeConstSpan(audio.data() + pos, chunk)).ok());
-    while (bar->StepsReady() > 0) {
-      ASSERT_GT(plain->StepsReady(), 0);
-      ASSERT_TRUE(bar->Step().ok());
-      ASSERT_TRUE(plain->Step().ok());
-      const std::vector<float>& tb = bar->last_warped_music_token();
-      const std::vector<float>& tp = plain->last_warped_music_token();
-      ASSERT_EQ(tb.size(), static_cast<size_t>(fps * audio::kNumFeatures));
-      const double period = tango ? 4 * 1800.0 / 128.0 : 3 * 1800.0 / 87.0;
-      for (int f = 0; f < fps; ++f) {
-        const int64_t j = (bar->steps_done() - 1) * fps + f;
-        const double x = j / period - std::floor(j / period);
-        const float* rb = tb.data() + f * audio::kNumFeatures;
-        const float* rp = tp.data() + f * audio::kNumFeatures;
-        ASSERT_NEAR(rb[audio::kBarPhaseCosIndex], std::cos(2.0 * M_PI * x), 1e-6) << "warped frame " << j;
-        ASSERT_NEAR(rb[audio::kBarPhaseSinIndex], std::sin(2.0 * M_PI * x), 1e-6) << "warped frame " << j;
-        for (int i = 0; i < audio::kNumFeatures; ++i) {
-          if (i != audio::kBarPhaseCosIndex && i != audio::kBarPhaseSinIndex) {
-            ASSERT_EQ(rb[i], rp[i]) << i;
+  // Mid-stream style change: tango's metre and reference from the next step on; then a snapshot.
+  const std::optional<SessionSnapshot> snap = StepInLockstep(
+      *bar, *plain, audio,
+      [&](const std::vector<float>& tb, const std::vector<float>& tp, bool tango) {
+        ASSERT_EQ(tb.size(), static_cast<size_t>(fps * audio::kNumFeatures));
+        const double period = tango ? 4 * 1800.0 / 128.0 : 3 * 1800.0 / 87.0;
+        for (int f = 0; f < fps; ++f) {
+          const int64_t j = (bar->steps_done() - 1) * fps + f;
+          const double x = j / period - std::floor(j / period);
+          const float* rb = tb.data() + f * audio::kNumFeatures;
+          const float* rp = tp.data() + f * audio::kNumFeatures;
+          ASSERT_NEAR(rb[audio::kBarPhaseCosIndex], std::cos(2.0 * M_PI * x), 1e-6)
+              << "warped frame " << j;
+          ASSERT_NEAR(rb[audio::kBarPhaseSinIndex], std::sin(2.0 * M_PI * x), 1e-6)
+              << "warped frame " << j;
+          for (int i = 0; i < audio::kNumFeatures; ++i) {
+            if (i != audio::kBarPhaseCosIndex && i != audio::kBarPhaseSinIndex) {
+              ASSERT_EQ(rb[i], rp[i]) << i;
+            }
           }
+          tracker_differs +=
+              std::fabs(rp[audio::kBarPhaseCosIndex] - rb[audio::kBarPhaseCosIndex]) > 1e-3f;
+          ++checked;
         }
-        tracker_differs += std::fabs(rp[audio::kBarPhaseCosIndex] - rb[audio::kBarPhaseCosIndex]) > 1e-3f;
-        ++checked;
-      }
-    }
-  }
+      });
   EXPECT_GT(checked, 4 * 60);
   EXPECT_GT(tracker_differs, checked / 2);  // the tracker's bar phase is another signal
   // A snapshot (taken as tango) restored into a session created as a waltz continues exactly.
@@ -909,10 +921,9 @@ TEST(WarpedSession, BarClockReplacesTheTrackersBarPhase) {
   ASSERT_TRUE(restored->Restore(*snap).ok());
   auto original = MakeSession(bar_model, opt);
   ASSERT_TRUE(original->Restore(*snap).ok());
-  const size_t from = audio.size() / 2 / chunk * chunk;
-  std::vector<float> rest(audio.begin() + from, audio.end());
-  const std::vector<PoseFrame> a = RunStream(*original, rest, {chunk});
-  ExpectSameFrames(a, RunStream(*restored, rest, {3 * chunk}));
+  std::vector<float> rest(audio.begin() + LockstepSwitch(audio), audio.end());
+  const std::vector<PoseFrame> a = RunStream(*original, rest, {kLockstepChunk});
+  ExpectSameFrames(a, RunStream(*restored, rest, {3 * kLockstepChunk}));
   // And the snapshot's bar clock is tango's, not the creating style's: the first token after restore.
   auto probe = MakeSession(bar_model, opt);
   ASSERT_TRUE(probe->Restore(*snap).ok());
