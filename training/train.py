@@ -250,6 +250,8 @@ def pretrain_seq(args, cfg, vqs, factors, run: pathlib.Path, vq_run: pathlib.Pat
   a.run, a.out, a.vq_run = str(sub), str(out), str(vq_run)
   a.tempo_ref, a.seq_iters, a.init_model, a.weights_dtype = 0.0, args.pretrain_iters, None, "f32"
   a.model_id = "pretrain"  # an intermediate file: never the id given for the final export
+  # own-code inputs, the weight average and the carried state: the tempo-normalised phase only
+  a.own_inputs, a.ema, a.carry_state = 0.0, 0.0, False
   sub.mkdir(parents=True, exist_ok=True)
   log(f"pretrain: fixed-rate phase, {a.seq_iters} iterations on tempo factors {factors}")
   train_seq.stage_seq(a, cfg, vqs, factors, sub, log)
@@ -346,6 +348,15 @@ def main(argv=None) -> int:
   ap.add_argument("--n-head", type=int, default=2)
   ap.add_argument("--lookahead", type=int, default=0, help="0 anticipatory, 1 reactive")
   ap.add_argument("--code-mask", type=float, default=0.4, help="past-motion dropout rate")
+  ap.add_argument("--own-inputs", type=float, default=0.0,
+                  help="share of the sequence model's non-BOS input codes replaced by its own draws (parallel "
+                       "scheduled sampling; the tempo-normalised phase only when pretraining; default 0)")
+  ap.add_argument("--carry-state", action="store_true",
+                  help="train the sequence model on whole songs window by window with its state carried "
+                       "(training.train_lanes; the tempo-normalised phase only when pretraining)")
+  ap.add_argument("--ema", type=float, default=0.0,
+                  help="decay of an exponential average of the sequence model's weights, which is then "
+                       "exported (the tempo-normalised phase only when pretraining; default 0: off)")
   ap.add_argument("--style-balance", type=float, default=0.5,
                   help="sequence model: each style's share of the training windows goes as (its windows) ** B "
                        "(train_seq.window_probs): 1 = the data's shares (waltz ~58 %%, tango ~4 %%), 0 = equal")
@@ -435,6 +446,10 @@ def main(argv=None) -> int:
   for name in ("own_iters", "own_weight", "own_anchor"):
     if getattr(args, name) < 0:
       ap.error(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
+  if not 0.0 <= args.ema < 1.0:
+    ap.error(f"--ema must be in [0, 1), got {args.ema}")
+  if not 0.0 <= args.own_inputs <= 1.0:
+    ap.error(f"--own-inputs must be in [0, 1], got {args.own_inputs}")
   if not 0.0 <= args.style_balance <= 1.0:
     ap.error(f"--style-balance must be in [0, 1], got {args.style_balance}")
   torch.set_num_threads(args.threads)

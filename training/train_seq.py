@@ -4,6 +4,12 @@ Making the music matter (docs/training.md): tempo-augmented pairs (train_data.TE
 clock (beat/bar phase and tempo features + PRE) and past-motion dropout: each input code is replaced by
 BOS with probability --code-mask and by a random code with probability code_mask / 4, so that the past
 motion alone cannot carry the timing and the model has to read the clock from the music.
+
+Own-code inputs (--own-inputs P, parallel scheduled sampling): the model first predicts every step of the
+window from the corrupted inputs (no gradient), one code per step is drawn from those logits, and each
+input code that is not BOS is replaced by the model's own draw with probability P before the step that
+is learnt; the targets stay the real codes. A model trained only on real histories reproduces its training
+songs teacher-forced but drifts to calmer motion on its own codes (docs/training.md, "Own-code inputs").
 """
 from __future__ import annotations
 
@@ -22,6 +28,7 @@ from training import train_data as td
 from training.model.config import SeqConfig
 from training.model.danceba import Danceba
 from training.model.layers import set_residual_dropout
+from training.train_lanes import Lanes, detach, reset_rows
 
 STEPS = 64          # training window, code steps (8.5 s)
 BATCH = 16
@@ -185,15 +192,69 @@ def bar_clock_of(args) -> dict | None:
   return td.BAR_CLOCK if args.tempo_ref > 0 and getattr(args, "bar_clock", False) else None
 
 
+def own_code_inputs(model, inputs, p: float, generator: torch.Generator | None = None,
+                    state: dict | None = None) -> tuple:
+  """`inputs` with each non-BOS input code of steps 1.. replaced, with probability p, by a code drawn from
+  the model's own prediction for that step (from the same inputs and carried `state`, no gradient). Step 0
+  and BOS stay."""
+  music, pre, u, l, sw = inputs
+  k = model.cfg.codebook_size
+  with torch.no_grad():
+    lu, ll, _ = model.forward_with_state(*inputs, state)
+    out = []
+    for codes, logits in ((u, lu), (l, ll)):
+      drawn = torch.multinomial(torch.softmax(logits[:, :-1].flatten(0, 1), -1), 1, generator=generator)
+      drawn = drawn.view(codes.shape[0], codes.shape[1] - 1)
+      swap = (torch.rand(drawn.shape, generator=generator) < p) & (codes[:, 1:] != k)
+      mixed = codes.clone()
+      mixed[:, 1:] = torch.where(swap, drawn, codes[:, 1:])
+      out.append(mixed)
+  return music, pre, out[0], out[1], sw
+
+
 def loss_of(model, inputs, targets) -> torch.Tensor:
   lu, ll = model(*inputs)
-  return 0.5 * (F.cross_entropy(lu.flatten(0, 1), targets[0].flatten()) +
-                F.cross_entropy(ll.flatten(0, 1), targets[1].flatten()))
+  return code_loss(lu, ll, targets)
+
+
+def code_loss(lu, ll, targets, reduction: str = "mean") -> torch.Tensor:
+  """Cross-entropy of the upper and lower logits against the target codes, averaged over the two."""
+  return 0.5 * (F.cross_entropy(lu.flatten(0, 1), targets[0].flatten(), reduction=reduction) +
+                F.cross_entropy(ll.flatten(0, 1), targets[1].flatten(), reduction=reduction))
+
+
+@torch.no_grad()
+def song_loss(model, toks, cfg, window: int = 128) -> float:
+  """Loss over whole songs from their first step, the state carried (the engine's condition): each song's
+  codes with BOS at step 0, its music shifted by the music lookahead, its own style; mean over all steps."""
+  s, k = cfg.music_lookahead_steps, cfg.codebook_size
+  total, count = 0.0, 0
+  for t in toks:
+    n = len(t["upper"]) - s - 1
+    if n < 1:
+      continue
+    u = torch.as_tensor(np.asarray(t["upper"][:n])).long().clone()[None]
+    l = torch.as_tensor(np.asarray(t["lower"][:n])).long().clone()[None]
+    u[0, 0] = l[0, 0] = k
+    music = torch.as_tensor(np.asarray(t["music"][s:s + n])).float()[None]
+    pre = torch.as_tensor(np.asarray(t["pre"][s:s + n])).float()[None]
+    targets = (torch.as_tensor(np.asarray(t["upper"][1:n + 1])).long()[None],
+               torch.as_tensor(np.asarray(t["lower"][1:n + 1])).long()[None])
+    sw = torch.zeros(1, cfg.n_styles + 1)
+    sw[0, t["style"]] = 1
+    state = None
+    for a in range(0, n, window):
+      e = min(n, a + window)
+      lu, ll, state = model.forward_with_state(music[:, a:e], pre[:, a:e], u[:, a:e], l[:, a:e], sw, state)
+      total += float(code_loss(lu, ll, (targets[0][:, a:e], targets[1][:, a:e]), reduction="sum"))
+      count += e - a
+  return total / max(count, 1)
 
 
 @torch.no_grad()
 def validation(model, val_toks, cfg, n_batches=6) -> dict:
-  """Loss with the true music and with another validation song's music (same windows): the gap."""
+  """Loss with the true music and with another validation song's music (same windows): the gap; and the
+  loss over whole songs with the state carried (song_loss)."""
   was_training = model.training
   model.eval()
   wrong = val_toks[1:] + val_toks[:1]
@@ -203,9 +264,10 @@ def validation(model, val_toks, cfg, n_batches=6) -> dict:
     for _ in range(n_batches):
       inputs, targets = make_batch(val_toks, cfg, rng, music_from=mf)
       out[key].append(float(loss_of(model, inputs, targets)))
+  song = song_loss(model, val_toks, cfg)
   model.train(was_training)
   vt, vw = float(np.mean(out["true"])), float(np.mean(out["wrong"]))
-  return {"val_loss": vt, "val_loss_wrong_music": vw, "music_gap": vw - vt}
+  return {"val_loss": vt, "val_loss_wrong_music": vw, "music_gap": vw - vt, "val_loss_song": song}
 
 
 def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> None:
@@ -271,9 +333,13 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
   opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=0.05)
   lr0 = opt.param_groups[0]["lr"]
   history, start, elapsed = [], 0, 0.0
+  ema_decay = float(getattr(args, "ema", 0.0))
+  ema = {k: v.detach().clone() for k, v in model.state_dict().items()} if ema_decay > 0 else None
   if ck_path.is_file():
     ck = torch.load(ck_path)
     model.load_state_dict(ck["model"])
+    if ema is not None and ck.get("ema") is not None:
+      ema = ck["ema"]
     opt.load_state_dict(ck["opt"])
     history, start, elapsed = ck["history"], ck["iter"], ck.get("elapsed", 0.0)
     if "rng" in ck:  # the batch sampler and torch continue where they stopped: a resume changes nothing
@@ -288,26 +354,45 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
     if args.init_model and cfg.use_pre:
       model.pre.bn.eval()  # keep the folded statistics (identity) of the exported model
 
+  carry = bool(getattr(args, "carry_state", False))
+  lanes = Lanes(train_toks, cfg, rng, args.batch, STEPS, float(getattr(args, "style_balance", 1.0))) if carry else None
+  carried = None
+  if lanes is not None and ck_path.is_file() and ck.get("lanes") is not None:
+    lanes.restore(ck["lanes"])
+    carried = ck.get("carried")
   train_mode()
   t_start = time.time() - elapsed
 
   def save(it):
-    torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "history": history, "iter": it,
+    torch.save({"model": model.state_dict(), "ema": ema, "opt": opt.state_dict(), "history": history, "iter": it,
                 "cfg": cfg.to_dict(), "elapsed": time.time() - t_start, "rng": rng.bit_generator.state,
-                "torch_rng": torch.get_rng_state()}, ck_path)
+                "torch_rng": torch.get_rng_state(),
+                "lanes": lanes.snapshot() if lanes is not None else None, "carried": carried}, ck_path)
 
   for it in tqdm(range(start, iters), desc="seq", initial=start, total=iters, mininterval=10):
     warm = min(1.0, (it + 1) / 200)
     for g in opt.param_groups:
       g["lr"] = lr0 * warm * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * it / iters)))
-    inputs, targets = make_batch(train_toks, cfg, rng, batch=args.batch, code_mask=args.code_mask,
-                                 style_dropout=STYLE_DROPOUT,
-                                 style_balance=float(getattr(args, "style_balance", 1.0)))
-    loss = loss_of(model, inputs, targets)
+    if lanes is not None:
+      inputs, targets, fresh = lanes.next(code_mask=args.code_mask, style_dropout=STYLE_DROPOUT)
+      carried = reset_rows(detach(carried), fresh)
+    else:
+      inputs, targets = make_batch(train_toks, cfg, rng, batch=args.batch, code_mask=args.code_mask,
+                                   style_dropout=STYLE_DROPOUT,
+                                   style_balance=float(getattr(args, "style_balance", 1.0)))
+    own = float(getattr(args, "own_inputs", 0.0))
+    if own > 0:
+      inputs = own_code_inputs(model, inputs, own, state=carried)
+    lu, ll, after = model.forward_with_state(*inputs, carried)
+    if lanes is not None:
+      carried = detach(after)
+    loss = code_loss(lu, ll, targets)
     opt.zero_grad()
     loss.backward()
     torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
     opt.step()
+    if ema is not None:
+      update_ema(ema, model, ema_decay)
     if it % 25 == 0:
       history.append({"iter": it, "loss": float(loss)})
     if it % args.val_every == args.val_every - 1 or it == iters - 1:
@@ -322,13 +407,27 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
         break
   save(it + 1 if iters > start else start)
   (run / "seq_history.json").write_text(json.dumps(history))
+  if ema is not None:
+    averaged = load_seq(run)
+    log(f"seq: weight average (decay {ema_decay:g}, exported): {json.dumps(validation(averaged, val_toks, cfg))}")
   log(f"seq: {(time.time() - t_start) / 60:.1f} min")
+
+
+@torch.no_grad()
+def update_ema(ema: dict, model, decay: float) -> None:
+  """ema <- decay ema + (1 - decay) weights, for every floating-point tensor (buffers copied)."""
+  for k, v in model.state_dict().items():
+    if v.dtype.is_floating_point:
+      ema[k].mul_(decay).add_(v, alpha=1.0 - decay)
+    else:
+      ema[k].copy_(v)
 
 
 def load_seq(run: pathlib.Path) -> Danceba:
   ck = torch.load(run / "seq.pt")
   model = Danceba(SeqConfig.from_dict(ck["cfg"]))
-  model.load_state_dict(ck["model"])
+  # the exponential average of the weights when training kept one (--ema), else the last weights
+  model.load_state_dict(ck["ema"] if ck.get("ema") is not None else ck["model"])
   return model.eval()
 
 

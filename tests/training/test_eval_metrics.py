@@ -348,3 +348,68 @@ def test_leave_one_out_removes_each_song_from_both_sides():
   assert rows["b"]["real_g"] == pytest.approx(ev.fid_div([real[0], real[2]])["fid_g"])
   assert rows["b"]["model_k"] == pytest.approx(ev.fid_div([gen[0], gen[2]])["fid_k"])
   assert rows["b"]["excess_k"] == pytest.approx(rows["b"]["model_k"] - rows["b"]["real_k"])
+
+
+def test_song_mean_swap_separates_song_averages_from_the_spread_within_songs():
+  from training.eval.fid_parts import song_mean_swap
+  names = ["tang_DANCE_C_1", "tang_DANCE_W_1", "tang_DANCE_W_2"]
+  real = [evaluate.Dance(n, _dance(seed=i, seconds=40, period=0.8 + 0.1 * i)) for i, n in enumerate(names)]
+  ref = [evaluate.Dance(f"tang_DANCE_{s}_{i + 5}", _dance(seed=10 + i, seconds=30, period=0.7 + 0.15 * i))
+         for i, s in enumerate("CCWWW")]
+  ev = evaluate.Evaluator(ref, real)
+  val = evaluate.segment_table(real, beats_of=lambda d: np.zeros(0))
+  vn = np.array([r["dance"] for r in val["rows"]])
+  # A model whose every song is the real dance shifted by its own offset: right spread, wrong averages.
+  rng = np.random.default_rng(0)
+  shift = {n: (rng.normal(0, 3, val["kinetic"].shape[1]), rng.normal(0, 0.2, val["geometric"].shape[1]))
+           for n in names}
+  gen = dict(val, kinetic=val["kinetic"] + np.stack([shift[n][0] for n in vn]),
+             geometric=val["geometric"] + np.stack([shift[n][1] for n in vn]))
+  out = song_mean_swap(ev, val, [gen])
+  for kind in "kg":
+    ref_x, norm, key = (ev.ref_k, ev.norm_k, "kinetic") if kind == "k" else (ev.ref_g, ev.norm_g, "geometric")
+    assert out[kind]["real"] == pytest.approx(metrics.frechet_distance(ref_x, norm.apply(val[key])))
+    assert out[kind]["model"] == pytest.approx(metrics.frechet_distance(ref_x, norm.apply(gen[key])))
+    # Moved to the real averages, the model is the real set; the real set moved to the model's is the model.
+    assert out[kind]["model_within_real_means"] == pytest.approx(out[kind]["real"], rel=1e-4)
+    assert out[kind]["real_within_model_means"] == pytest.approx(out[kind]["model"], rel=1e-4)
+    assert out[kind]["model"] > out[kind]["real"] + 1.0
+  for n in names:
+    dist = np.linalg.norm(shift[n][0] / ev.norm_k.std)
+    assert out["per_song"][n]["model_real"] == pytest.approx(dist, rel=1e-4)
+  with pytest.raises(ValueError, match="cover the real dances' songs"):
+    song_mean_swap(ev, val, [dict(gen, rows=[{"dance": "other"}] * len(vn))])
+
+
+def test_free_run_feeds_the_models_own_draws_and_teacher_forcing_the_real_codes():
+  import types
+  import torch
+  from training.eval.free_run import free_running_draws, teacher_forced_draws
+  k = 8
+
+  def peaked(codes):  # logits that put all the mass on (input code + 1) mod K
+    return torch.nn.functional.one_hot((codes + 1) % k, k).float() * 100.0
+
+  class Successor:  # a stand-in sequence model: the next code is the input code + 1
+    cfg = types.SimpleNamespace(codebook_size=k, n_styles=2)
+
+    def __call__(self, music, pre, u, l, style_w):
+      return peaked(u), peaked(l)
+
+    def step(self, music, pre, u, l, style_w, state):
+      lu, ll = peaked(u), peaked(l)
+      if style_w[0, -1] == 1:  # the unconditional pass of style guidance: a flat prediction
+        lu, ll = torch.zeros_like(lu), torch.zeros_like(ll)
+      return lu, ll, (state or 0) + 1
+
+  real = np.array([5, 2, 6, 6, 1, 3, 0])
+  t = {"music": np.zeros((7, 4)), "pre": np.zeros((7, 2)), "upper": real, "lower": real[::-1].copy(), "style": 0}
+  gen = torch.Generator().manual_seed(0)
+  tu, tl = teacher_forced_draws(Successor(), t, 3, gen)
+  # step 0 reads BOS (K), every later step the real code before it
+  np.testing.assert_array_equal(tu, np.tile((np.r_[k, real[1:6]] + 1) % k, (3, 1)))
+  np.testing.assert_array_equal(tl, np.tile((np.r_[k, real[::-1][1:6]] + 1) % k, (3, 1)))
+  for w in (1.0, 3.0):
+    fu, fl = free_running_draws(Successor(), t, 2, gen, guidance=w)
+    np.testing.assert_array_equal(fu, np.tile(np.arange(1, 7), (2, 1)))  # BOS -> 1 -> 2 ...: its own draws
+    np.testing.assert_array_equal(fl, fu)

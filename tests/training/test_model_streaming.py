@@ -128,3 +128,45 @@ def test_style_none_row_and_mixing():
   w = one_hot_style(2, -1, 4)
   assert w.shape == (2, 5) and float(w[0, 4]) == 1.0
   assert np.isclose(float(one_hot_style(1, 2, 4).sum()), 1.0)
+
+
+@pytest.mark.parametrize("variant", [{}, {"shared_mamba": True}])
+def test_danceba_windows_with_carried_state_equal_one_window(variant):
+  torch.manual_seed(4)
+  cfg = SeqConfig(feature_dim=6, pre_dim=8, d_model=32, n_heads=2, codebook_size=16, attn_window=5,
+                  n_styles=3, style_dim=4, **variant)
+  model = Danceba(cfg)
+  _perturb(model, 0.1)
+  model.eval()
+  b, t = 2, 17
+  mu, pre = torch.randn(b, t, 24), torch.randn(b, t, 8)
+  u, l = torch.randint(0, 17, (b, t)), torch.randint(0, 17, (b, t))
+  sw = torch.tensor([[0.5, 0.5, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+  lu, ll = model(mu, pre, u, l, sw)
+  # windows of 2, 6 and 9 steps (shorter and longer than the attention window), the state carried
+  state, parts_u, parts_l = None, [], []
+  for a, e in ((0, 2), (2, 8), (8, 17)):
+    pu, pl, state = model.forward_with_state(mu[:, a:e], pre[:, a:e], u[:, a:e], l[:, a:e], sw, state)
+    parts_u.append(pu)
+    parts_l.append(pl)
+    assert state["base0"]["k"].shape[2] == 3 * min(e, cfg.attn_window - 1)
+  torch.testing.assert_close(torch.cat(parts_u, 1), lu, atol=1e-4, rtol=1e-4)
+  torch.testing.assert_close(torch.cat(parts_l, 1), ll, atol=1e-4, rtol=1e-4)
+  # the carried state is the streaming form's: stepping on from it equals the parallel form
+  _, _, s16 = model.forward_with_state(mu[:, :16], pre[:, :16], u[:, :16], l[:, :16], sw, None)
+  su, sl, _ = model.step(mu[:, 16], pre[:, 16], u[:, 16], l[:, 16], sw,
+                         {k: {n: x for n, x in v.items() if n != "valid"} for k, v in s16.items()})
+  torch.testing.assert_close(su, lu[:, 16], atol=1e-4, rtol=1e-4)
+  torch.testing.assert_close(sl, ll[:, 16], atol=1e-4, rtol=1e-4)
+
+
+def test_tgca_rows_without_a_cache_ignore_the_cached_steps():
+  torch.manual_seed(5)
+  blk = TGCABlock(16, 2, window=4, d_s=4, r=0.25)
+  _perturb(blk)
+  x, sv = torch.randn(2, 9, 3, 16), torch.randn(2, 4)
+  _, state = blk.forward_with_state(x[:, :5], sv, None)
+  state["valid"][1] = False  # row 1 starts a new song here: its cache is someone else's past
+  y, _ = blk.forward_with_state(x[:, 5:], sv, state)
+  torch.testing.assert_close(y[0], blk(x[:1], sv[:1])[0, 5:], atol=1e-5, rtol=1e-5)
+  torch.testing.assert_close(y[1], blk(x[1:, 5:], sv[1:])[0], atol=1e-5, rtol=1e-5)

@@ -4,7 +4,7 @@ import torch
 
 from training.model import SeqConfig, VQConfig
 from training.model.danceba import Danceba
-from training.train_seq import loss_of, make_batch, validation, window_probs
+from training.train_seq import loss_of, make_batch, own_code_inputs, validation, window_probs
 from training.train_vq import integrate_root_torch, train_vq
 
 
@@ -37,6 +37,44 @@ def test_seq_two_steps():
   assert not torch.equal(before, model.head_upper.weight)
   v = validation(model, toks, cfg, n_batches=1)
   assert np.isfinite(v["music_gap"])
+
+
+def test_own_code_inputs_replace_real_codes_by_the_models_draws():
+  torch.manual_seed(0)
+  cfg = SeqConfig(feature_dim=5, pre_dim=8, d_model=16, n_heads=2, codebook_size=16, n_styles=2, style_dim=4,
+                  attn_window=8)
+  model = Danceba(cfg)
+
+  class Fixed(torch.nn.Module):  # a head that predicts one code at every step, whatever the model read
+    def __init__(self, code):
+      super().__init__()
+      self.code = code
+
+    def forward(self, y):
+      return torch.nn.functional.one_hot(torch.full(y.shape[:-1], self.code), 16).float() * 50.0
+
+  model.head_upper, model.head_lower = Fixed(7), Fixed(3)
+  music, pre = torch.randn(2, 12, 4 * 5), torch.randn(2, 12, 8)
+  u = torch.tensor([[16, 1, 16, 2, 3, 4, 5, 6, 8, 9, 10, 11], [0, 1, 2, 16, 4, 5, 6, 8, 9, 10, 11, 12]])
+  l = u.flip(1).clone()
+  sw = torch.zeros(2, 3)
+  sw[:, 0] = 1
+  inputs = (music, pre, u, l, sw)
+  lu, ll = model(*inputs)
+  assert (lu.argmax(-1) == 7).all() and (ll.argmax(-1) == 3).all()
+  _, _, mu, ml, _ = own_code_inputs(model, inputs, 1.0)
+  for real, mixed, own in ((u, mu, 7), (l, ml, 3)):
+    assert torch.equal(mixed[:, 0], real[:, 0])  # step 0 (BOS at the song start, or the real code) stays
+    bos = real == 16
+    assert torch.equal(mixed[bos], real[bos])  # past-motion dropout stays
+    assert (mixed[:, 1:][~bos[:, 1:]] == own).all()
+  _, _, mu, ml, _ = own_code_inputs(model, inputs, 0.0)
+  assert torch.equal(mu, u) and torch.equal(ml, l)
+  gen = torch.Generator().manual_seed(1)
+  big = (music.repeat(50, 1, 1), pre.repeat(50, 1, 1), u.repeat(50, 1), l.repeat(50, 1), sw.repeat(50, 1))
+  _, _, mu, _, _ = own_code_inputs(model, big, 0.3, gen)
+  changed = (mu[:, 1:] != big[2][:, 1:]).float().sum() / (big[2][:, 1:] != 16).float().sum()
+  assert 0.25 < float(changed) < 0.35
 
 
 def test_batch_targets_are_next_period_codes():
@@ -209,7 +247,8 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
     assert e.value.code == 2
   # The owndec stage's seeds and weights.
   for flag, bad in (("--own-seeds", "1,x"), ("--own-seeds", ""), ("--own-weight", "-1"), ("--own-anchor", "-0.5"),
-                    ("--own-iters", "-3"), ("--style-balance", "-0.1"), ("--style-balance", "1.5")):
+                    ("--own-iters", "-3"), ("--style-balance", "-0.1"), ("--style-balance", "1.5"),
+                    ("--own-inputs", "-0.1"), ("--own-inputs", "1.5")):
     with pytest.raises(SystemExit) as e:
       train.main(["--run", str(tmp_path / "never"), flag, bad])
     assert e.value.code == 2

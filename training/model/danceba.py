@@ -5,8 +5,9 @@ Inputs per step t (already shifted by ``music_lookahead_steps`` by the caller, s
   style weights (B, n_styles + 1) (non-negative, summing to 1; last column is "none").
 Outputs: logits of (u_{t+1}, l_{t+1}), each (.., K).
 
-``forward`` runs a whole window in parallel (training); ``step`` runs one step with carried state (KV caches
-and Mamba states). The two agree to float rounding (tests/training/test_model_streaming.py).
+``forward`` runs a whole window in parallel (training); ``forward_with_state`` the same from the state a
+previous window left (training with carried state); ``step`` runs one step with carried state (KV caches
+and Mamba states). All agree to float rounding (tests/training/test_model_streaming.py).
 """
 from __future__ import annotations
 
@@ -71,25 +72,40 @@ class Danceba(nn.Module):
   # ---- parallel (training) form ----------------------------------------------------------------------
   def forward(self, music, pre, u, l, style_w, trace: dict | None = None):
     """music (B,T,4F), pre (B,T,P), u/l (B,T) long, style_w (B,S+1) -> logits_u, logits_l (B,T,K)."""
+    lu, ll, _ = self.forward_with_state(music, pre, u, l, style_w, None, trace)
+    return lu, ll
+
+  def forward_with_state(self, music, pre, u, l, style_w, state: dict | None, trace: dict | None = None):
+    """``forward`` starting from the state a previous window left (None = the song's start), and the state
+    after this window: ``step``'s keys and formats (TGCA: KV cache, plus 'valid'; PMMM: Mamba state), so a
+    long sequence run window by window equals it run at once (training with carried state)."""
+    state = state or {}
+    new_state = {}
     sv = self.style_vector(style_w)
     x = self.embed(music, pre, u, l)
     if trace is not None:
       trace["embed"] = x
     for i, blk in enumerate(self.base):
-      x = blk(x, sv, trace, f"base{i}")
+      x, new_state[f"base{i}"] = blk.forward_with_state(x, sv, state.get(f"base{i}"), trace, f"base{i}")
       if trace is not None:
         trace[f"base{i}"] = x
     for i in range(self.cfg.n_head):
-      x = torch.stack([self._pmmm_set(i, s)(x[:, :, s], sv) for s in range(3)], dim=2)
+      outs = []
+      for s in range(3):
+        key = f"pmmm{i}.{s}"
+        o, new_state[key] = self._pmmm_set(i, s).forward_with_state(x[:, :, s], sv, state.get(key))
+        outs.append(o)
+      x = torch.stack(outs, dim=2)
       if trace is not None:
         trace[f"pmmm{i}"] = x
-    x = self.final(x, sv, trace, "final")
+    x, new_state["final"] = self.final.forward_with_state(x, sv, state.get("final"), trace, "final")
     if trace is not None:
       trace["final"] = x
     y = self.norm_f(x)
     if trace is not None:
       trace["norm_f"] = y
-    return self._heads(y)
+    lu, ll = self._heads(y)
+    return lu, ll, new_state
 
   # ---- streaming (engine) form -----------------------------------------------------------------------
   def step(self, music, pre, u, l, style_w, state: dict | None, trace: dict | None = None):

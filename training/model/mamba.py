@@ -44,16 +44,23 @@ class Mamba(nn.Module):
 
   def forward(self, h: torch.Tensor) -> torch.Tensor:
     """h (B, T, d) -> (B, T, d), state starting at zero."""
+    return self.forward_with_state(h, None)[0]
+
+  def forward_with_state(self, h: torch.Tensor, state: dict | None) -> tuple[torch.Tensor, dict]:
+    """h (B, T, d) -> (B, T, d) and the state after the last step, starting from `state` (``step``'s
+    format: the last d_conv-1 conv inputs and the SSM state; None = zeros): a long sequence run window by
+    window with the state carried equals the whole sequence run at once (training with carried state)."""
     bsz, t, _ = h.shape
     xi, zg = self.in_proj(h).chunk(2, dim=-1)
-    xp = F.pad(xi.transpose(1, 2), (self.d_conv - 1, 0))  # (B, d_inner, T + d_conv - 1)
+    prev = h.new_zeros(bsz, self.d_inner, self.d_conv - 1) if state is None else state["conv"]
+    xp = torch.cat([prev, xi.transpose(1, 2)], dim=-1)  # (B, d_inner, d_conv - 1 + T)
     c = F.conv1d(xp, self.conv_w.unsqueeze(1), self.conv_b, groups=self.d_inner).transpose(1, 2)
     c = F.silu(c)
     dt, b, cc = self._ssm_inputs(c)
     a = -torch.exp(self.A_log)  # (d_inner, d_state)
     decay = torch.exp(dt.unsqueeze(-1) * a)  # (B, T, d_inner, d_state)
     drive = (dt * c).unsqueeze(-1) * b.unsqueeze(2)  # (B, T, d_inner, d_state)
-    hs = h.new_zeros(bsz, self.d_inner, self.d_state)
+    hs = h.new_zeros(bsz, self.d_inner, self.d_state) if state is None else state["ssm"]
     states = []
     # unbind (not decay[:, i]) so that the backward pass stacks gradients instead of scattering each step
     # into a full-size zero tensor (which made the loop quadratic in T).
@@ -61,7 +68,7 @@ class Mamba(nn.Module):
       hs = dec_i * hs + drv_i
       states.append(hs)
     y = torch.einsum("btin,btn->bti", torch.stack(states, dim=1), cc) + self.D * c
-    return self.out_proj(y * F.silu(zg))
+    return self.out_proj(y * F.silu(zg)), {"conv": xp[:, :, xp.shape[-1] - (self.d_conv - 1):], "ssm": hs}
 
   def step(self, h: torch.Tensor, state: dict | None) -> tuple[torch.Tensor, dict]:
     """h (B, d) one token -> (B, d). state: 'conv' (B, d_inner, d_conv-1), 'ssm' (B, d_inner, d_state)."""
@@ -93,9 +100,13 @@ class PMMMBlock(nn.Module):
     self.drop = ResidualDropout()
 
   def forward(self, x: torch.Tensor, sv: torch.Tensor) -> torch.Tensor:  # x (B, T, d)
+    return self.forward_with_state(x, sv, None)[0]
+
+  def forward_with_state(self, x: torch.Tensor, sv: torch.Tensor, state: dict | None):  # x (B, T, d)
     x = self.style(x, sv)
-    x = x + self.drop(self.mamba(self.norm1(x)))
-    return x + self.drop(self.mlp(self.norm2(x)))
+    m, state = self.mamba.forward_with_state(self.norm1(x), state)
+    x = x + self.drop(m)
+    return x + self.drop(self.mlp(self.norm2(x))), state
 
   def step(self, x: torch.Tensor, sv: torch.Tensor, state: dict | None):  # x (B, d)
     x = self.style(x, sv)

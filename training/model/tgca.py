@@ -70,14 +70,35 @@ class TGCABlock(nn.Module):
   def forward(self, x: torch.Tensor, sv: torch.Tensor, trace: dict | None = None,
               prefix: str = "") -> torch.Tensor:
     """x (B, T, 3, d) -> (B, T, 3, d), whole window from step 0."""
+    return self.forward_with_state(x, sv, None, trace, prefix)[0]
+
+  def forward_with_state(self, x: torch.Tensor, sv: torch.Tensor, state: dict | None,
+                         trace: dict | None = None, prefix: str = "") -> tuple[torch.Tensor, dict]:
+    """x (B, T, 3, d) -> (B, T, 3, d) and the KV cache after the window, the window's steps attending also
+    to the cached steps before it. `state`: ``step``'s format ('k', 'v' (B, H, 3n, d_head) of the last n
+    <= W-1 steps) plus an optional 'valid' (B, 3n) bool, False for a batch row whose cache holds nothing
+    (a row that starts a song while others continue); None = no steps before."""
     b, t, _, d = x.shape
     x = self.style(x.reshape(b, 3 * t, d), sv)
     h = self.norm1(x)
     q, k, v = self._qkv(h)
-    bias = window_bias(t, self.window, self.n_heads).to(x)
-    att = torch.softmax(q @ k.transpose(-1, -2) / math.sqrt(self.d_head) + bias, dim=-1)
-    a = (att @ v).transpose(1, 2).reshape(b, 3 * t, d)
-    return self._finish(x, h, a, trace, prefix).view(b, t, 3, d)
+    n = 0
+    valid = torch.ones(b, 3 * t, dtype=torch.bool, device=x.device)
+    if state is not None and state["k"].shape[2] > 0:
+      n = state["k"].shape[2] // 3
+      k = torch.cat([state["k"], k], dim=2)
+      v = torch.cat([state["v"], v], dim=2)
+      prev = state.get("valid")
+      if prev is None:
+        prev = torch.ones(b, 3 * n, dtype=torch.bool, device=x.device)
+      valid = torch.cat([prev, valid], dim=1)
+    bias = window_bias(n + t, self.window, self.n_heads).to(x)[:, 3 * n:]  # queries: the window's steps
+    scores = q @ k.transpose(-1, -2) / math.sqrt(self.d_head) + bias
+    scores = scores.masked_fill(~valid[:, None, None, :], float("-inf"))
+    a = (torch.softmax(scores, dim=-1) @ v).transpose(1, 2).reshape(b, 3 * t, d)
+    start = max(0, k.shape[2] - 3 * (self.window - 1))  # the next window sees W-1 past steps
+    new_state = {"k": k[:, :, start:], "v": v[:, :, start:], "valid": valid[:, start:]}
+    return self._finish(x, h, a, trace, prefix).view(b, t, 3, d), new_state
 
   def step(self, x: torch.Tensor, sv: torch.Tensor, state: dict | None, trace: dict | None = None,
            prefix: str = "") -> tuple[torch.Tensor, dict]:
