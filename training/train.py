@@ -93,7 +93,7 @@ def stage_vqdec(args, run: pathlib.Path, log: Logger) -> dict:
 
 def load_vqs(run: pathlib.Path, fine_tuned: bool = True, own: bool = False):
   """The run's VQ-VAEs; with fine_tuned, a part's vqdec_{part}.pt (decoder fine-tuned) when it exists; with
-  own too, the upper body's owndec_upper.pt when it was made for the run's current sequence model
+  own too, a part's owndec_{part}.pt when it was made for the run's current sequence model
   (own_decoder)."""
   from training.model.vqvae import PoseVQVAE
   vqs = {}
@@ -123,11 +123,17 @@ def owndec_dance_settings(args, run: pathlib.Path) -> dict:
           "seeds": [int(s) for s in args.own_seeds]}
 
 
+def own_parts(args) -> list[str]:
+  """The parts whose decoder the owndec stage fits: those with an own-codes weight above 0."""
+  return [part for part in ("upper", "lower") if args.own_weight[part] > 0]
+
+
 def owndec_finetune_settings(args) -> dict:
-  """The owndec stage's fine-tuning options (recorded in its checkpoint and report)."""
-  return {"iters": args.own_iters, "own_weight": args.own_weight, "own_anchor": args.own_anchor,
-          "energy_weight": args.vq_energy_weight["upper"], "lr": args.vq_dec_lr,
-          "seeds": [int(s) for s in args.own_seeds]}
+  """The owndec stage's fine-tuning options (recorded in its checkpoints and report)."""
+  parts = own_parts(args)
+  return {"iters": args.own_iters, "own_weight": {p: args.own_weight[p] for p in parts},
+          "own_anchor": args.own_anchor, "energy_weight": {p: args.vq_energy_weight[p] for p in parts},
+          "lr": args.vq_dec_lr, "seeds": [int(s) for s in args.own_seeds]}
 
 
 def owndec_settings(args, run: pathlib.Path) -> dict:
@@ -155,19 +161,20 @@ def owndec_current(run: pathlib.Path, args=None) -> dict | None:
 
 
 def own_decoder(vqs: dict, run: pathlib.Path, args=None) -> dict:
-  """vqs with the upper decoder of <run>/owndec_upper.pt when that file exists and was fine-tuned on the
-  codes of the run's current sequence model (with args: and the current settings); otherwise vqs unchanged."""
-  path = run / "owndec_upper.pt"
-  if not path.is_file():
-    return vqs
-  ck = torch.load(path)
-  if not _owndec_fits(ck, run, args):
-    return vqs
+  """vqs with each part's decoder of <run>/owndec_{part}.pt when that file exists and was fine-tuned on the
+  codes of the run's current sequence model (with args: and the current settings); other parts unchanged."""
   import copy
   out = dict(vqs)
-  out["upper"] = copy.deepcopy(vqs["upper"])
-  out["upper"].load_state_dict(ck["model"])
-  out["upper"].eval()
+  for part in ("upper", "lower"):
+    path = run / f"owndec_{part}.pt"
+    if not path.is_file():
+      continue
+    ck = torch.load(path)
+    if not _owndec_fits(ck, run, args):
+      continue
+    out[part] = copy.deepcopy(vqs[part])
+    out[part].load_state_dict(ck["model"])
+    out[part].eval()
   return out
 
 
@@ -187,12 +194,13 @@ def own_dances_dir(args, run: pathlib.Path) -> pathlib.Path:
 
 
 def stage_owndec(args, vqs: dict, run: pathlib.Path, log: Logger) -> dict:
-  """The upper-body decoder fine-tuned on the sequence model's own codes (training.train_vq_decoder.OwnCodes):
-  the exported model (args.out) dances every Tang training song in its own style through the engine
-  (dance-generate, seeds --own-seeds) into <run>/own_dances/, then the upper decoder of `vqs` is fine-tuned
-  with train_vq_decoder's loss (the vqdec stage's energy weight) plus --own-weight x the own-codes term.
-  Writes <run>/owndec_upper.pt and owndec_report.json, both keyed to the sequence model (seq_digest); returns
-  vqs with the new upper decoder (the caller exports again)."""
+  """The decoders fine-tuned on the sequence model's own codes (training.train_vq_decoder.OwnCodes): the
+  exported model (args.out) dances every Tang training song in its own style through the engine
+  (dance-generate, seeds --own-seeds) into <run>/own_dances/, then each part with an --own-weight above 0
+  (own_parts) has its decoder in `vqs` fine-tuned, from the same dances, with train_vq_decoder's loss (the
+  vqdec stage's energy weight of the part) plus the part's --own-weight x the own-codes term. Writes
+  <run>/owndec_{part}.pt and owndec_report.json, all keyed to the sequence model (seq_digest); returns vqs
+  with the new decoders (the caller exports again)."""
   import copy
 
   from training.eval.engine_eval import generate_song
@@ -215,23 +223,25 @@ def stage_owndec(args, vqs: dict, run: pathlib.Path, log: Logger) -> dict:
         os.replace(tmp, out)
   log(f"owndec: {len(ids)} training songs x {len(args.own_seeds)} seeds danced by the engine in "
       f"{time.time() - t0:.0f} s -> {dances}")
-  vq = copy.deepcopy(vqs["upper"])
-  t0 = time.time()
-  hist = finetune_decoder(vq, "upper", training_arrays("upper", args.vq_mirror), args.own_iters,
-                          args.vq_energy_weight["upper"], lr=args.vq_dec_lr, log=log, own_dances=str(dances),
-                          own_weight=args.own_weight, own_anchor=args.own_anchor)
   settings = owndec_finetune_settings(args)
-  path = run / "owndec_upper.pt"
-  tmp = path.with_suffix(".tmp")
   full = json.loads(json.dumps(owndec_settings(args, run)))
-  torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict(), "history": hist, "iter": args.own_iters,
-              "finetune": settings, "seq_sha256": digest, "settings": full}, tmp)
-  os.replace(tmp, path)
-  log(f"owndec-upper: {args.own_iters} iterations in {time.time() - t0:.0f} s -> {path}")
-  new = dict(vqs, upper=vq)
+  new, last = dict(vqs), {}
+  for part in own_parts(args):
+    vq = copy.deepcopy(vqs[part])
+    t0 = time.time()
+    hist = finetune_decoder(vq, part, training_arrays(part, args.vq_mirror), args.own_iters,
+                            args.vq_energy_weight[part], lr=args.vq_dec_lr, log=log, own_dances=str(dances),
+                            own_weight=args.own_weight[part], own_anchor=args.own_anchor)
+    path = run / f"owndec_{part}.pt"
+    tmp = path.with_suffix(".tmp")
+    torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict(), "history": hist, "iter": args.own_iters,
+                "finetune": settings, "seq_sha256": digest, "settings": full}, tmp)
+    os.replace(tmp, path)
+    log(f"owndec-{part}: {args.own_iters} iterations in {time.time() - t0:.0f} s -> {path}")
+    new[part] = vq
+    last[part] = hist[-1] if hist else None
   val = [td.load_clip(i, with_music=False) for i in td.load_split()["validation"]]
-  report = dict(validation_report(new, val), **settings, seq_sha256=digest, settings=full,
-                last=hist[-1] if hist else None)
+  report = dict(validation_report(new, val), **settings, seq_sha256=digest, settings=full, last=last)
   log(f"owndec validation: {json.dumps(report)}")
   (run / "owndec_report.json").write_text(json.dumps(report, indent=1))
   return new
@@ -325,10 +335,11 @@ def main(argv=None) -> int:
                        "one number for both parts or upper=W,lower=W (docs/training.md: the upper body's 0.1)")
   ap.add_argument("--vq-dec-lr", type=float, default=1e-4, help="vqdec stage: learning rate")
   ap.add_argument("--own-iters", type=int, default=1000,
-                  help="owndec stage: iterations of the upper decoder's fine-tuning on the model's own codes "
+                  help="owndec stage: iterations of each decoder's fine-tuning on the model's own codes "
                        "(0: no owndec stage)")
-  ap.add_argument("--own-weight", type=float, default=1.0,
-                  help="owndec stage: weight of the own-codes term (training.train_vq_decoder.OwnCodes)")
+  ap.add_argument("--own-weight", default="upper=1,lower=0",
+                  help="owndec stage: weight of the own-codes term (training.train_vq_decoder.OwnCodes) per "
+                       "part, 'upper=W,lower=W' or one W for both; a part at 0 keeps its vqdec decoder")
   ap.add_argument("--own-anchor", type=float, default=100.0,
                   help="owndec stage: weight of the posture anchor inside the own-codes term")
   ap.add_argument("--own-seeds", default="10,11", help="owndec stage: engine seeds danced per training song")
@@ -443,7 +454,11 @@ def main(argv=None) -> int:
     args.own_seeds = [int(x) for x in args.own_seeds.split(",")]
   except ValueError:
     ap.error(f"--own-seeds must be comma-separated integers, got '{args.own_seeds}'")
-  for name in ("own_iters", "own_weight", "own_anchor"):
+  try:
+    args.own_weight = parse_part_weights(args.own_weight)
+  except ValueError as e:
+    ap.error(f"--own-weight: {e}")
+  for name in ("own_iters", "own_anchor"):
     if getattr(args, name) < 0:
       ap.error(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
   if not 0.0 <= args.ema < 1.0:
@@ -488,7 +503,7 @@ def main(argv=None) -> int:
       args.lr = args.finetune_lr
     if "seq" in stages:
       train_seq.stage_seq(args, cfg, vqs, factors, run, log)
-    base_vqs, vqs = vqs, own_decoder(vqs, run, args)  # the owndec stage's decoder if it fits seq.pt and settings
+    base_vqs, vqs = vqs, own_decoder(vqs, run, args)  # the owndec stage's decoders if they fit seq.pt and settings
     # Fixed-rate models are evaluated from the checkpoint (torch generator) and the report goes into the
     # export; tempo-normalised ones are evaluated from the exported file by the engine.
     if "eval" in stages and args.tempo_ref <= 0:
@@ -497,7 +512,7 @@ def main(argv=None) -> int:
       train_seq.stage_export(args, vqs, run, log)
     if "owndec" in stages and "export" not in stages:
       log("owndec: skipped (it dances the model the export stage writes: run it with --stages export,owndec)")
-    if "owndec" in stages and args.own_iters > 0 and args.tempo_ref > 0 and "export" in stages:
+    if "owndec" in stages and args.own_iters > 0 and own_parts(args) and args.tempo_ref > 0 and "export" in stages:
       if owndec_current(run, args) is None:
         vqs = stage_owndec(args, base_vqs, run, log)
         train_seq.stage_export(args, vqs, run, log)

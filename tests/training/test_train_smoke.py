@@ -246,7 +246,7 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
       train.main(["--run", str(tmp_path / "never"), "--vq-energy-weight", bad])
     assert e.value.code == 2
   # The owndec stage's seeds and weights.
-  for flag, bad in (("--own-seeds", "1,x"), ("--own-seeds", ""), ("--own-weight", "-1"), ("--own-anchor", "-0.5"),
+  for flag, bad in (("--own-seeds", "1,x"), ("--own-seeds", ""), ("--own-weight", "-1"), ("--own-weight", "lower=x"), ("--own-anchor", "-0.5"),
                     ("--own-iters", "-3"), ("--style-balance", "-0.1"), ("--style-balance", "1.5"),
                     ("--own-inputs", "-0.1"), ("--own-inputs", "1.5")):
     with pytest.raises(SystemExit) as e:

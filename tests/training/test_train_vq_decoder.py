@@ -169,24 +169,31 @@ def test_finetune_with_own_codes_changes_only_the_decoder(tmp_path, monkeypatch)
   assert all(torch.equal(v, after[k]) for k, v in frozen.items())
 
 
-def test_load_vqs_takes_the_own_decoder_only_for_its_sequence_model(tmp_path):
+def test_load_vqs_takes_the_own_decoders_only_for_their_sequence_model(tmp_path):
   from training.train import load_vqs, seq_digest
   for part, dim in (("upper", 45), ("lower", 31)):
     vq = _tiny(dim)
     torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict()}, tmp_path / f"vq_{part}.pt")
   (tmp_path / "seq.pt").write_bytes(b"sequence model A")
-  vq = _tiny(45)
-  with torch.no_grad():
-    for p in vq.decoder.parameters():
-      p.add_(1.0)
-  torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict(), "seq_sha256": seq_digest(tmp_path)},
-             tmp_path / "owndec_upper.pt")
-  key = next(k for k in vq.decoder.state_dict() if k.endswith("weight"))
-  plain = load_vqs(tmp_path)["upper"].decoder.state_dict()[key]
-  own = load_vqs(tmp_path, own=True)["upper"].decoder.state_dict()[key]
-  assert torch.equal(own, plain + 1.0)
+  keys = {}
+  for part, dim, shift in (("upper", 45, 1.0), ("lower", 31, 2.0)):
+    vq = _tiny(dim)
+    with torch.no_grad():
+      for p in vq.decoder.parameters():
+        p.add_(shift)
+    torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict(), "seq_sha256": seq_digest(tmp_path)},
+               tmp_path / f"owndec_{part}.pt")
+    keys[part] = next(k for k in vq.decoder.state_dict() if k.endswith("weight"))
+  for part, shift in (("upper", 1.0), ("lower", 2.0)):
+    plain = load_vqs(tmp_path)[part].decoder.state_dict()[keys[part]]
+    own = load_vqs(tmp_path, own=True)[part].decoder.state_dict()[keys[part]]
+    assert torch.equal(own, plain + shift)
+  (tmp_path / "owndec_lower.pt").unlink()  # a part without its own decoder keeps the plain one
+  assert torch.equal(load_vqs(tmp_path, own=True)["lower"].decoder.state_dict()[keys["lower"]],
+                     load_vqs(tmp_path)["lower"].decoder.state_dict()[keys["lower"]])
   (tmp_path / "seq.pt").write_bytes(b"sequence model B")  # retrained: the own decoder no longer fits
-  assert torch.equal(load_vqs(tmp_path, own=True)["upper"].decoder.state_dict()[key], plain)
+  assert torch.equal(load_vqs(tmp_path, own=True)["upper"].decoder.state_dict()[keys["upper"]],
+                     load_vqs(tmp_path)["upper"].decoder.state_dict()[keys["upper"]])
 
 
 def test_own_decoder_is_redone_when_its_settings_change(tmp_path):
@@ -199,13 +206,15 @@ def test_own_decoder_is_redone_when_its_settings_change(tmp_path):
   (tmp_path / "dance_period_beats.json").write_text(json.dumps({"waltz": 3}))
   args = argparse.Namespace(tempo_ref=105.0, period_lock=8.0, period_lock_periods=[1, 2], bar_clock=False,
                             style_period_lock={"waltz": 0.0}, period_lock_sharpness=10.0, guidance=3.0,
-                            own_seeds=[10, 11], own_iters=1000, own_weight=1.0, own_anchor=100.0,
+                            own_seeds=[10, 11], own_iters=1000, own_weight={"upper": 1.0, "lower": 0.0},
+                            own_anchor=100.0,
                             vq_energy_weight={"upper": 0.1, "lower": 0.3}, vq_dec_lr=1e-4)
   report = {"seq_sha256": train.seq_digest(tmp_path), "settings": train.owndec_settings(args, tmp_path)}
   (tmp_path / "owndec_report.json").write_text(json.dumps(report))
   assert train.owndec_current(tmp_path, args) is not None
   assert train.owndec_current(tmp_path) is not None  # without args: the sequence model alone
-  for name, value in (("guidance", 2.0), ("period_lock", 4.0), ("own_seeds", [10]), ("own_weight", 0.3)):
+  for name, value in (("guidance", 2.0), ("period_lock", 4.0), ("own_seeds", [10]),
+                      ("own_weight", {"upper": 0.3, "lower": 0.0}), ("own_weight", {"upper": 1.0, "lower": 0.5})):
     changed = argparse.Namespace(**dict(vars(args), **{name: value}))
     assert train.owndec_current(tmp_path, changed) is None, name
   (tmp_path / "seq.pt").write_bytes(b"sequence model B")
@@ -216,7 +225,7 @@ def test_own_decoder_is_redone_when_its_settings_change(tmp_path):
   dances = train.own_dances_dir(args, tmp_path)
   _own_dances(dances, 16)
   assert len(load_own_codes(str(train.own_dances_dir(args, tmp_path)), "upper")) == 2
-  assert len(load_own_codes(str(train.own_dances_dir(argparse.Namespace(**dict(vars(args), own_weight=0.3)),
-                                                     tmp_path)), "upper")) == 2
+  other = argparse.Namespace(**dict(vars(args), own_weight={"upper": 0.3, "lower": 0.0}))
+  assert len(load_own_codes(str(train.own_dances_dir(other, tmp_path)), "upper")) == 2
   train.own_dances_dir(argparse.Namespace(**dict(vars(args), guidance=2.0)), tmp_path)
   assert not list(dances.glob("*.json"))
