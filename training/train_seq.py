@@ -9,7 +9,8 @@ Own-code inputs (--own-inputs P, parallel scheduled sampling): the model first p
 window from the corrupted inputs (no gradient), one code per step is drawn from those logits, and each
 input code that is not BOS is replaced by the model's own draw with probability P before the step that
 is learnt; the targets stay the real codes. A model trained only on real histories reproduces its training
-songs teacher-forced but drifts to calmer motion on its own codes (docs/training.md, "Own-code inputs").
+songs teacher-forced but drifts to calmer motion on its own codes (docs/training.md, "Free-running loses
+the energetic styles' energy").
 """
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ from training import train_data as td
 from training.model.config import SeqConfig
 from training.model.danceba import Danceba
 from training.model.layers import set_residual_dropout
-from training.train_lanes import Lanes, detach, reset_rows
+from training.train_lanes import Lanes, detach, mask_codes, reset_rows
 
 STEPS = 64          # training window, code steps (8.5 s)
 BATCH = 16
@@ -130,10 +131,7 @@ def make_batch(toks, cfg: SeqConfig, rng, batch=BATCH, steps=STEPS, code_mask=0.
     if t0 == 0:
       u[0] = l[0] = k
     for c in (u, l):
-      r = rng.random(steps)
-      c[r < code_mask] = k
-      rnd = (r >= code_mask) & (r < code_mask * 1.25)
-      c[rnd] = rng.integers(0, k, int(rnd.sum()))
+      mask_codes(c, k, code_mask, rng)
     mus.append(m)
     pres.append(p)
     us.append(u)

@@ -1,5 +1,5 @@
 """Teacher-forced against free-running: does the sequence model keep a song's motion when it reads its own
-codes? (docs/training.md, "Own-code inputs").
+codes? (docs/training.md, "Free-running loses the energetic styles' energy").
 
     /usr/bin/python3 -m training.eval.free_run --model M.dncw --tokens RUN/tokens_train_warp_....pt
         [--songs ID ...] [--draws 4] [--guidance 1] [--seed 0]
