@@ -56,19 +56,25 @@ def test_tgca_is_causal():
   assert not torch.allclose(y1[:, 4:], y2[:, 4:])
 
 
-@pytest.mark.parametrize("variant", [{}, {"shared_mamba": True}, {"use_gate": False, "use_pre": False},
-                                     {"music_lookahead_steps": 1}])
-def test_danceba_step_equals_parallel(variant):
-  torch.manual_seed(3)
+def _danceba_and_inputs(variant: dict, seed: int, t: int):
+  """A small perturbed model (attention window 5) and random inputs of 2 rows x t steps."""
+  torch.manual_seed(seed)
   cfg = SeqConfig(feature_dim=6, pre_dim=8, d_model=32, n_heads=2, codebook_size=16, attn_window=5,
                   n_styles=3, style_dim=4, **variant)
   model = Danceba(cfg)
   _perturb(model, 0.1)
   model.eval()
-  b, t = 2, 13
-  mu, pre = torch.randn(b, t, 24), torch.randn(b, t, 8)
-  u, l = torch.randint(0, 17, (b, t)), torch.randint(0, 17, (b, t))
+  mu, pre = torch.randn(2, t, 24), torch.randn(2, t, 8)
+  u, l = torch.randint(0, 17, (2, t)), torch.randint(0, 17, (2, t))
   sw = torch.tensor([[0.5, 0.5, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+  return model, (mu, pre, u, l, sw)
+
+
+@pytest.mark.parametrize("variant", [{}, {"shared_mamba": True}, {"use_gate": False, "use_pre": False},
+                                     {"music_lookahead_steps": 1}])
+def test_danceba_step_equals_parallel(variant):
+  t = 13
+  model, (mu, pre, u, l, sw) = _danceba_and_inputs(variant, 3, t)
   lu, ll = model(mu, pre, u, l, sw)
   state, su, sl = None, [], []
   for i in range(t):
@@ -132,16 +138,8 @@ def test_style_none_row_and_mixing():
 
 @pytest.mark.parametrize("variant", [{}, {"shared_mamba": True}])
 def test_danceba_windows_with_carried_state_equal_one_window(variant):
-  torch.manual_seed(4)
-  cfg = SeqConfig(feature_dim=6, pre_dim=8, d_model=32, n_heads=2, codebook_size=16, attn_window=5,
-                  n_styles=3, style_dim=4, **variant)
-  model = Danceba(cfg)
-  _perturb(model, 0.1)
-  model.eval()
-  b, t = 2, 17
-  mu, pre = torch.randn(b, t, 24), torch.randn(b, t, 8)
-  u, l = torch.randint(0, 17, (b, t)), torch.randint(0, 17, (b, t))
-  sw = torch.tensor([[0.5, 0.5, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+  model, (mu, pre, u, l, sw) = _danceba_and_inputs(variant, 4, 17)
+  cfg = model.cfg
   lu, ll = model(mu, pre, u, l, sw)
   # windows of 2, 6 and 9 steps (shorter and longer than the attention window), the state carried
   state, parts_u, parts_l = None, [], []
