@@ -420,6 +420,13 @@ def main(argv: list[str] | None = None) -> None:
   if not args.check and not args.convert and not args.set_meta and not args.graft:
     ap.error("nothing to do: give --check FILE, --convert IN OUT, --set-meta FILE KEY=JSON ... or --graft FILE SRC "
              "PREFIX ...")
+  try:
+    _run(args, ap)
+  except (OSError, ValueError) as e:  # a missing or bad file, a bad key or prefix: one line, exit status 1
+    ap.exit(1, f"training.export: {e}\n")
+
+
+def _run(args, ap: argparse.ArgumentParser) -> None:
   if args.graft:
     if len(args.graft) < 3:
       ap.error("--graft FILE SRC PREFIX [PREFIX ...]")

@@ -251,3 +251,8 @@ def test_graft_replaces_only_the_prefixed_tensors(tmp_path):
   assert h1["metadata"]["training"]["grafted"][-1]["prefixes"] == ["vq.upper.dec."]
   with pytest.raises(subprocess.CalledProcessError):
     _run_export("--graft", str(a), str(b), "no.such.prefix")
+  # A missing source file is a one-line error, not a traceback, and leaves the target as it was.
+  with pytest.raises(subprocess.CalledProcessError) as e:
+    _run_export("--graft", str(a), str(tmp_path / "missing.dncw"), "vq.upper.dec.")
+  assert e.value.returncode == 1 and "Traceback" not in e.value.stderr and "missing.dncw" in e.value.stderr
+  np.testing.assert_array_equal(_bits(read_dncw(str(a))[1][dec[0]]), _bits(changed[dec[0]]))
