@@ -512,7 +512,8 @@ def main(argv=None) -> int:
       train_seq.stage_export(args, vqs, run, log)
     if "owndec" in stages and "export" not in stages:
       log("owndec: skipped (it dances the model the export stage writes: run it with --stages export,owndec)")
-    if "owndec" in stages and args.own_iters > 0 and own_parts(args) and args.tempo_ref > 0 and "export" in stages:
+    fit_own = args.own_iters > 0 and own_parts(args) and args.tempo_ref > 0
+    if "owndec" in stages and fit_own and "export" in stages:
       if owndec_current(run, args) is None:
         vqs = stage_owndec(args, base_vqs, run, log)
         train_seq.stage_export(args, vqs, run, log)

@@ -353,7 +353,8 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
       model.pre.bn.eval()  # keep the folded statistics (identity) of the exported model
 
   carry = bool(getattr(args, "carry_state", False))
-  lanes = Lanes(train_toks, cfg, rng, args.batch, STEPS, float(getattr(args, "style_balance", 1.0))) if carry else None
+  balance = float(getattr(args, "style_balance", 1.0))
+  lanes = Lanes(train_toks, cfg, rng, args.batch, STEPS, balance) if carry else None
   carried = None
   if lanes is not None and ck_path.is_file() and ck.get("lanes") is not None:
     lanes.restore(ck["lanes"])
@@ -362,8 +363,8 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
   t_start = time.time() - elapsed
 
   def save(it):
-    torch.save({"model": model.state_dict(), "ema": ema, "opt": opt.state_dict(), "history": history, "iter": it,
-                "cfg": cfg.to_dict(), "elapsed": time.time() - t_start, "rng": rng.bit_generator.state,
+    torch.save({"model": model.state_dict(), "ema": ema, "opt": opt.state_dict(), "history": history,
+                "iter": it, "cfg": cfg.to_dict(), "elapsed": time.time() - t_start, "rng": rng.bit_generator.state,
                 "torch_rng": torch.get_rng_state(),
                 "lanes": lanes.snapshot() if lanes is not None else None, "carried": carried}, ck_path)
 
@@ -377,7 +378,7 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
     else:
       inputs, targets = make_batch(train_toks, cfg, rng, batch=args.batch, code_mask=args.code_mask,
                                    style_dropout=STYLE_DROPOUT,
-                                   style_balance=float(getattr(args, "style_balance", 1.0)))
+                                   style_balance=balance)
     own = float(getattr(args, "own_inputs", 0.0))
     if own > 0:
       inputs = own_code_inputs(model, inputs, own, state=carried)
@@ -407,7 +408,8 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
   (run / "seq_history.json").write_text(json.dumps(history))
   if ema is not None:
     averaged = load_seq(run)
-    log(f"seq: weight average (decay {ema_decay:g}, exported): {json.dumps(validation(averaged, val_toks, cfg))}")
+    v = validation(averaged, val_toks, cfg)
+    log(f"seq: weight average (decay {ema_decay:g}, exported): {json.dumps(v)}")
   log(f"seq: {(time.time() - t_start) / 60:.1f} min")
 
 

@@ -94,7 +94,8 @@ class TGCABlock(nn.Module):
       valid = torch.cat([prev, valid], dim=1)
     bias = window_bias(n + t, self.window, self.n_heads).to(x)[:, 3 * n:]  # queries: the window's steps
     scores = q @ k.transpose(-1, -2) / math.sqrt(self.d_head) + bias
-    scores = scores.masked_fill(~valid[:, None, None, :], float("-inf"))
+    if not bool(valid.all()):  # only rows that start a song while others continue need the mask
+      scores = scores.masked_fill(~valid[:, None, None, :], float("-inf"))
     a = (torch.softmax(scores, dim=-1) @ v).transpose(1, 2).reshape(b, 3 * t, d)
     start = max(0, k.shape[2] - 3 * (self.window - 1))  # the next window sees W-1 past steps
     new_state = {"k": k[:, :, start:], "v": v[:, :, start:], "valid": valid[:, start:]}
