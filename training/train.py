@@ -212,7 +212,7 @@ def stage_owndec(args, vqs: dict, run: pathlib.Path, log: Logger) -> dict:
                      "DANCE_BUILD_DIR")
   digest = seq_digest(run)
   dances = own_dances_dir(args, run)
-  ids = [i for i in td.paired_ids(td.load_split()["train"]) if i.startswith("tang_")]
+  ids = td.tang_ids(td.load_split()["train"])
   t0 = time.time()
   for seed in args.own_seeds:
     for mid in ids:
@@ -270,13 +270,13 @@ def pretrain_seq(args, cfg, vqs, factors, run: pathlib.Path, vq_run: pathlib.Pat
 
 
 def parse_style_weights(text: str) -> dict[str, float]:
-  """'waltz=0,tango=4' -> {"waltz": 0.0, "tango": 4.0}: known style names (train_data.STYLES), each weight
+  """'waltz=0,tango=4' -> {"waltz": 0.0, "tango": 4.0}: known style names (train_data.ALL_STYLES), each weight
   in 0..100 (the engine's range for time_base.style_period_lock); '' -> {}."""
   out = {}
   for part in filter(None, (p.strip() for p in text.split(","))):
     name, sep, value = part.partition("=")
-    if not sep or name not in td.STYLES:
-      raise ValueError(f"'{part}' is not STYLE=B with STYLE one of {', '.join(td.STYLES)}")
+    if not sep or name not in td.ALL_STYLES:
+      raise ValueError(f"'{part}' is not STYLE=B with STYLE one of {', '.join(td.ALL_STYLES)}")
     try:
       weight = float(value)
     except ValueError:
@@ -431,8 +431,8 @@ def main(argv=None) -> int:
   if args.fold_tempo and args.tempo_ref <= 0:
     ap.error("--fold-tempo needs the tempo-normalised timeline (--tempo-ref > 0)")
   for st in filter(None, args.warp_tempo_styles.split(",")):
-    if st not in td.STYLES:
-      ap.error(f"--warp-tempo-styles: unknown style '{st}' (known: {', '.join(td.STYLES)})")
+    if st not in td.ALL_STYLES:
+      ap.error(f"--warp-tempo-styles: unknown style '{st}' (known: {', '.join(td.ALL_STYLES)})")
   try:
     args.style_period_lock = parse_style_weights(args.style_period_lock)
   except ValueError as e:
@@ -490,9 +490,11 @@ def main(argv=None) -> int:
       vqs = load_models(args.vq_model)[1]
     else:
       vqs = load_vqs(vq_run)
+    split = td.load_split()
     cfg = SeqConfig(d_model=args.d_model, n_head=args.n_head, codebook_size=vqs["upper"].cfg.codebook_size,
                     music_lookahead_steps=args.lookahead, use_pre=not args.no_pre,
-                    use_gate=not args.no_gate, shared_mamba=args.shared_mamba, n_styles=len(td.STYLES))
+                    use_gate=not args.no_gate, shared_mamba=args.shared_mamba,
+                    n_styles=len(td.styles_for(td.paired_ids(split["train"] + split["validation"]))))
     factors = tuple(float(f) for f in args.tempo_factors.split(","))
     if "seq" in stages and args.tempo_ref > 0 and not args.init_model and args.pretrain_iters > 0:
       # From scratch on the warped timeline alone the model memorises the 31 training songs (measured:

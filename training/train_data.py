@@ -18,6 +18,7 @@ import pathlib
 import numpy as np
 
 from training.data import representation as rep
+from training.data.aistpp import AIST_GENRES
 from training.data.skeleton import mirror_positions
 from training.eval.music import stretch_audio
 from training.eval.tempo import time_stretch_motion
@@ -29,7 +30,12 @@ STRETCH_CACHE = REPO / "training" / "cache" / "stretched_audio"
 BAR_PHASE_COS = 105  # feature index of bar_phase (cos, sin): docs/features.md
 TEMPOGRAM, TEMPO = 54, 104  # feature indices of the tempogram (48 entries) and the running tempo
 FEATURE_CACHE = REPO / "training" / "cache" / "features"
+# The style rows of a model trained on the data at hand (Tang, CMU salsa, Perfume): the shipped layout.
 STYLES = ["cha-cha", "rumba", "tango", "waltz", "salsa", "pop"]
+# AIST++'s genres (training.data.aistpp.AIST_GENRES) not among STYLES: rows 6.. of a model trained with AIST++
+# dances converted (training.data.prepare --aistpp). A run's rows are styles_for(its songs).
+EXTRA_STYLES = [g for g in AIST_GENRES.values() if g not in STYLES]
+ALL_STYLES = STYLES + EXTRA_STYLES
 TEMPO_FACTORS = (0.8, 0.9, 1.0, 1.1, 1.25)
 
 
@@ -46,6 +52,23 @@ class Clip:
   pre: np.ndarray | None = None       # (T, 128)
   audio_path: str | None = None
   audio_offset_s: float = 0.0
+
+
+def style_index(name: str) -> int:
+  """A style label's row (ALL_STYLES), or ValueError naming the known labels."""
+  if name not in ALL_STYLES:
+    raise ValueError(f"unknown style label '{name}' (known: {', '.join(ALL_STYLES)})")
+  return ALL_STYLES.index(name)
+
+
+def styles_for(ids: list[str]) -> list[str]:
+  """The style rows of a model trained on the motions `ids`: STYLES when every label is one of them (the
+  shipped layout), else ALL_STYLES (AIST++'s genres appended, so a style's row does not depend on which
+  genres a user converted)."""
+  labels = {str(np.load(MOTION_CACHE / f"{i}.npz")["style"]) for i in ids}
+  for name in labels:
+    style_index(name)
+  return list(STYLES) if labels <= set(STYLES) else list(ALL_STYLES)
 
 
 def load_split() -> dict:
@@ -74,7 +97,7 @@ def load_clip(motion_id: str, factor: float = 1.0, with_music: bool = True, mirr
   if abs(factor - 1.0) > 1e-6:
     pos = time_stretch_motion(pos, factor)
   upper, lower = rep.encode(pos)
-  style = STYLES.index(str(z["style"]))
+  style = style_index(str(z["style"]))
   audio = str(z["audio_path"]) if "audio_path" in z.files and str(z["audio_path"]) else None
   clip = Clip(motion_id, factor, style, upper.astype(np.float32), lower.astype(np.float32),
               pos.astype(np.float32))
@@ -108,7 +131,7 @@ def style_reference_tempi(ids: list[str], default_bpm: float) -> dict[str, float
     tempo = extract_features(str(z["audio_path"]), cache_dir=FEATURE_CACHE)["summary"]["tempo_median_bpm"]
     by_style.setdefault(str(z["style"]), []).append(float(tempo))
   refs = {}
-  for style in STYLES:
+  for style in [s for s in ALL_STYLES if s in STYLES or s in by_style]:
     t = by_style.get(style)
     if not t:
       refs[style] = float(default_bpm)
@@ -182,7 +205,7 @@ def load_warped_clip(motion_id: str, reference_bpm: float, frames_per_step: int 
   w = (xs - i)[:, None, None]
   warped = pos[i] * (1 - w) + pos[i + 1] * w
   upper, lower = rep.encode(warped)
-  clip = Clip(motion_id, factor, STYLES.index(str(z["style"])), upper.astype(np.float32),
+  clip = Clip(motion_id, factor, style_index(str(z["style"])), upper.astype(np.float32),
               lower.astype(np.float32), warped.astype(np.float32))
   clip.features = m["features"][src[sel]].astype(np.float32)
   if bar_beats > 0:
@@ -215,5 +238,17 @@ def dance_period_beats(ids: list[str], refs: dict[str, float]) -> dict[str, int]
   return {style: min(16, max(1, int(round(float(np.median(b)))))) for style, b in sorted(by_style.items())}
 
 
-def paired_ids(ids: list[str]) -> list[str]:
+def tang_ids(ids: list[str]) -> list[str]:
+  """The Tang songs among `ids`: the ones the evaluation (training/eval) scores."""
   return [i for i in ids if i.startswith("tang_")]
+
+
+def paired_ids(ids: list[str]) -> list[str]:
+  """The dances among `ids` that have music: the Tang songs, and any other converted dance whose motion
+  cache names its audio (AIST++ after training.data.prepare --aistpp). Salsa and Perfume have none."""
+  def has_music(i: str) -> bool:
+    if i.startswith("tang_"):
+      return True
+    p = MOTION_CACHE / f"{i}.npz"
+    return p.is_file() and bool(str(np.load(p)["audio_path"]))
+  return [i for i in ids if has_music(i)]

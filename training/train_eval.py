@@ -74,7 +74,7 @@ def generate_positions(model, vqs, audio_path: str, seeds=(0,), style: int = -1,
 
 def _style_of(motion_id: str) -> int:
   z = np.load(td.MOTION_CACHE / f"{motion_id}.npz")
-  return td.STYLES.index(str(z["style"]))
+  return td.style_index(str(z["style"]))
 
 
 def tempo_report(model, vqs, ids, workdir: pathlib.Path, seeds=(0, 1), log=print, **sampling) -> dict:
@@ -98,7 +98,7 @@ def tempo_report(model, vqs, ids, workdir: pathlib.Path, seeds=(0, 1), log=print
 def evaluate_model(model, vqs, run: pathlib.Path, log, n_songs: int = 8) -> dict:
   from training.train_seq import build_tokens, validation
   split = td.load_split()
-  val_ids = td.paired_ids(split["validation"])[:n_songs]
+  val_ids = td.tang_ids(split["validation"])[:n_songs]
   val_toks = build_tokens(val_ids, (1.0,), vqs, log)
   report = {"losses": validation(model, val_toks, model.cfg, n_batches=12)}
   log(f"eval losses: {json.dumps(report['losses'])}")

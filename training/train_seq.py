@@ -287,7 +287,7 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
                             warp_factors if refs else (1.0,), fold)
   warp_styles = str(getattr(args, "warp_tempo_styles", "") or "")
   if refs and warp_styles:  # the other styles keep only their songs at their own tempo
-    keep = {td.STYLES.index(st) for st in warp_styles.split(",")}
+    keep = {td.style_index(st) for st in warp_styles.split(",")}
     train_toks = [t for t in train_toks if t["factor"] == 1.0 or t["style"] in keep]
     log(f"seq: tempo factors {warp_factors} for {warp_styles} only: {len(train_toks)} clips")
   val_toks = build_tokens(val_ids, (1.0,), vqs, log, vq_dir / f"tokens_val_{tag}.pt", refs, bars, fold_tempo=fold)
@@ -503,7 +503,7 @@ def stage_export(args, vqs, run: pathlib.Path, log) -> None:
   out = pathlib.Path(args.out)
   model_id = getattr(args, "model_id", None) or out.stem + "-" + time.strftime("%Y%m%d")
   extra = {"model_id": model_id, "features": FEATURES_META,
-           "skeleton": skeleton_meta(), "styles": td.STYLES, "training": {"run": str(run)},
+           "skeleton": skeleton_meta(), "styles": td.ALL_STYLES[:model.cfg.n_styles], "training": {"run": str(run)},
            "time_base": time_base_meta(args, run, log)}
   extra["sampling"] = {"guidance": float(getattr(args, "guidance", 1.0))}
   for name in ("vq_report.json", "vqdec_report.json", "eval_report.json"):

@@ -413,3 +413,24 @@ def test_free_run_feeds_the_models_own_draws_and_teacher_forcing_the_real_codes(
     fu, fl = free_running_draws(Successor(), t, 2, gen, guidance=w)
     np.testing.assert_array_equal(fu, np.tile(np.arange(1, 7), (2, 1)))  # BOS -> 1 -> 2 ...: its own draws
     np.testing.assert_array_equal(fl, fu)
+
+
+def test_real_spread_draws_the_validations_composition_and_ranks_an_outlying_set_high():
+  from training.eval import real_spread
+  rng = np.random.default_rng(0)
+  ids = ([f"tang_DANCE_W_{i}" for i in range(10)] + [f"tang_DANCE_C_{i}" for i in range(4)] +
+         [f"tang_DANCE_R_{i}" for i in range(4)] + ["tang_DANCE_T_5_a", "tang_DANCE_T_5_b"])
+  validation = ["tang_DANCE_C_0", "tang_DANCE_R_0", "tang_DANCE_T_5_b", "tang_DANCE_W_0", "tang_DANCE_W_1"]
+  # Every song from one distribution, but the validation's cha-cha, rumba and waltzes danced far off it.
+  shifted = [v for v in validation if v != "tang_DANCE_T_5_b"]
+  tables = {i: {"kinetic": rng.standard_normal((6, 3)) + (3.0 if i in shifted else 0.0),
+                "geometric": rng.standard_normal((6, 2))} for i in ids}
+  sets = real_spread.random_sets(ids, validation, 50, seed=1)
+  for s in sets:
+    assert s[0] == "tang_DANCE_T_5_b" and "tang_DANCE_T_5_a" not in s and len(set(s)) == len(s) == 5
+    assert sorted(real_spread.style_letter(i) for i in s[1:]) == ["C", "R", "W", "W"]
+  assert len({tuple(s) for s in sets}) > 10
+  r = real_spread.spread(tables, validation, 200, seed=1)
+  assert r["fid_k"]["official_percentile"] > 95 and r["official"]["fid_k"] > r["fid_k"]["p90"]
+  # The geometric features do not single the validation set out.
+  assert 5 < r["fid_g"]["official_percentile"] < 95

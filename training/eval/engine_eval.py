@@ -63,7 +63,7 @@ def main(argv=None) -> None:
                   "--fill-from)")
   ap.add_argument("--fill-from", default=None, help="a suite directory whose s<seed>/dances/ hold the other songs")
   args = ap.parse_args(argv)
-  ids = td.paired_ids(td.load_split()["validation"])
+  ids = td.tang_ids(td.load_split()["validation"])
   songs = set(args.songs.split(",")) if args.songs else set(ids)
   if not songs <= set(ids):
     ap.error(f"--songs: not validation songs: {', '.join(sorted(songs - set(ids)))}")

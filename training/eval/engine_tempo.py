@@ -97,7 +97,7 @@ def main(argv=None) -> None:
   if len(args.seeds) < 3:
     print("engine_tempo: fewer than 3 seeds: the ideal-follower calibration is skipped", flush=True)
   split = td.load_split()
-  ids = td.paired_ids(split[args.songs]) if args.songs in ("validation", "train") else args.songs.split(",")
+  ids = td.tang_ids(split[args.songs]) if args.songs in ("validation", "train") else args.songs.split(",")
   rows, pooled = [], []
   with tempfile.TemporaryDirectory() as tmp:
     work = pathlib.Path(tmp)

@@ -68,9 +68,9 @@ def main(argv=None) -> None:
   args = ap.parse_args(argv)
   split = td.load_split()
   if args.songs == "all":
-    ids = td.paired_ids(split["train"]) + td.paired_ids(split["validation"])
+    ids = td.tang_ids(split["train"]) + td.tang_ids(split["validation"])
   elif args.songs in ("train", "validation"):
-    ids = td.paired_ids(split[args.songs])
+    ids = td.tang_ids(split[args.songs])
   else:
     ids = args.songs.split(",")
   windows = int(args.seconds // WINDOW_S)
