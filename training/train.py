@@ -261,7 +261,7 @@ def pretrain_seq(args, cfg, vqs, factors, run: pathlib.Path, vq_run: pathlib.Pat
   a.tempo_ref, a.seq_iters, a.init_model, a.weights_dtype = 0.0, args.pretrain_iters, None, "f32"
   a.model_id = "pretrain"  # an intermediate file: never the id given for the final export
   # own-code inputs, the weight average and the carried state: the tempo-normalised phase only
-  a.own_inputs, a.ema, a.carry_state = 0.0, 0.0, False
+  a.own_inputs, a.ema, a.carry_state, a.aux_steps = 0.0, 0.0, False, 1
   sub.mkdir(parents=True, exist_ok=True)
   log(f"pretrain: fixed-rate phase, {a.seq_iters} iterations on tempo factors {factors}")
   train_seq.stage_seq(a, cfg, vqs, factors, sub, log)
@@ -365,6 +365,10 @@ def main(argv=None) -> int:
   ap.add_argument("--carry-state", action="store_true",
                   help="train the sequence model on whole songs window by window with its state carried "
                        "(training.train_lanes; the tempo-normalised phase only when pretraining)")
+  ap.add_argument("--aux-steps", type=int, default=1,
+                  help="multi-step prediction: training-only heads also predict the codes 2..J steps ahead "
+                       "(train_seq.AuxHeads; the tempo-normalised phase only when pretraining; default 1: off)")
+  ap.add_argument("--aux-weight", type=float, default=0.5, help="weight of the --aux-steps loss")
   ap.add_argument("--ema", type=float, default=0.0,
                   help="decay of an exponential average of the sequence model's weights, which is then "
                        "exported (the tempo-normalised phase only when pretraining; default 0: off)")
@@ -463,6 +467,8 @@ def main(argv=None) -> int:
       ap.error(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
   if not 0.0 <= args.ema < 1.0:
     ap.error(f"--ema must be in [0, 1), got {args.ema}")
+  if not 1 <= args.aux_steps <= 16 or args.aux_weight < 0:
+    ap.error(f"--aux-steps must be in 1..16 and --aux-weight >= 0, got {args.aux_steps}, {args.aux_weight}")
   if not 0.0 <= args.own_inputs <= 1.0:
     ap.error(f"--own-inputs must be in [0, 1], got {args.own_inputs}")
   if not 0.0 <= args.style_balance <= 1.0:

@@ -215,6 +215,30 @@ def loss_of(model, inputs, targets) -> torch.Tensor:
   return code_loss(lu, ll, targets)
 
 
+class AuxHeads(torch.nn.Module):
+  """Training-only heads that read the sequence model's final hidden state (norm_f) at step t and predict
+  the codes of steps t + 2 .. t + J (the model's own heads predict t + 1): multi-step prediction, so the
+  state carries where the dance goes over the next J periods, not only the next code. Not exported."""
+
+  def __init__(self, d_model: int, codebook_size: int, steps: int):
+    super().__init__()
+    self.steps = steps
+    self.upper = torch.nn.ModuleList(torch.nn.Linear(d_model, codebook_size, bias=False)
+                                     for _ in range(steps - 1))
+    self.lower = torch.nn.ModuleList(torch.nn.Linear(d_model, codebook_size, bias=False)
+                                     for _ in range(steps - 1))
+
+  def loss(self, y: torch.Tensor, targets) -> torch.Tensor:
+    """y (B, T, 3, d): the final hidden state; targets: make_batch's (next codes (B, T) per part). Mean over
+    j = 2 .. J of code_loss of the j-steps-ahead heads, on the positions whose target is in the window."""
+    total = y.new_zeros(())
+    for j in range(2, self.steps + 1):
+      h = y[:, :y.shape[1] - j + 1]
+      total = total + code_loss(self.upper[j - 2](h[..., 1, :]), self.lower[j - 2](h[..., 2, :]),
+                                (targets[0][:, j - 1:], targets[1][:, j - 1:]))
+    return total / (self.steps - 1)
+
+
 def code_loss(lu, ll, targets, reduction: str = "mean") -> torch.Tensor:
   """Cross-entropy of the upper and lower logits against the target codes, averaged over the two."""
   return 0.5 * (F.cross_entropy(lu.flatten(0, 1), targets[0].flatten(), reduction=reduction) +
@@ -328,7 +352,12 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
   if dropout > 0:
     n_drop = set_residual_dropout(model, dropout)
     log(f"seq: residual dropout {dropout:g} on {n_drop} residual branches (training only)")
-  opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=0.05)
+  aux_steps, aux_weight = int(getattr(args, "aux_steps", 1)), float(getattr(args, "aux_weight", 0.0))
+  aux = AuxHeads(cfg.d_model, cfg.codebook_size, aux_steps) if aux_steps > 1 and aux_weight > 0 else None
+  if aux is not None:
+    log(f"seq: multi-step prediction, codes 2..{aux_steps} steps ahead at weight {aux_weight:g} (training only)")
+  opt = torch.optim.AdamW(list(model.parameters()) + (list(aux.parameters()) if aux is not None else []),
+                          lr=args.lr, weight_decay=0.05)
   lr0 = opt.param_groups[0]["lr"]
   history, start, elapsed = [], 0, 0.0
   ema_decay = float(getattr(args, "ema", 0.0))
@@ -338,6 +367,8 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
     model.load_state_dict(ck["model"])
     if ema is not None and ck.get("ema") is not None:
       ema = ck["ema"]
+    if aux is not None:
+      aux.load_state_dict(ck["aux"])
     opt.load_state_dict(ck["opt"])
     history, start, elapsed = ck["history"], ck["iter"], ck.get("elapsed", 0.0)
     if "rng" in ck:  # the batch sampler and torch continue where they stopped: a resume changes nothing
@@ -366,7 +397,8 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
     torch.save({"model": model.state_dict(), "ema": ema, "opt": opt.state_dict(), "history": history,
                 "iter": it, "cfg": cfg.to_dict(), "elapsed": time.time() - t_start, "rng": rng.bit_generator.state,
                 "torch_rng": torch.get_rng_state(),
-                "lanes": lanes.snapshot() if lanes is not None else None, "carried": carried}, ck_path)
+                "lanes": lanes.snapshot() if lanes is not None else None, "carried": carried,
+                "aux": aux.state_dict() if aux is not None else None}, ck_path)
 
   for it in tqdm(range(start, iters), desc="seq", initial=start, total=iters, mininterval=10):
     warm = min(1.0, (it + 1) / 200)
@@ -382,12 +414,14 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
     own = float(getattr(args, "own_inputs", 0.0))
     if own > 0:
       inputs = own_code_inputs(model, inputs, own, state=carried)
-    lu, ll, after = model.forward_with_state(*inputs, carried)
+    trace = {} if aux is not None else None
+    lu, ll, after = model.forward_with_state(*inputs, carried, trace)
     if lanes is not None:
       carried = detach(after)
     loss = code_loss(lu, ll, targets)
+    total = loss + aux_weight * aux.loss(trace["norm_f"], targets) if aux is not None else loss
     opt.zero_grad()
-    loss.backward()
+    total.backward()
     torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
     opt.step()
     if ema is not None:

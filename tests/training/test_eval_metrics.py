@@ -430,7 +430,8 @@ def test_real_spread_draws_the_validations_composition_and_ranks_an_outlying_set
     assert s[0] == "tang_DANCE_T_5_b" and "tang_DANCE_T_5_a" not in s and len(set(s)) == len(s) == 5
     assert sorted(real_spread.style_letter(i) for i in s[1:]) == ["C", "R", "W", "W"]
   assert len({tuple(s) for s in sets}) > 10
-  r = real_spread.spread(tables, validation, 200, seed=1)
+  r = real_spread.spread(tables, validation, 200, seed=1, compare=(0.0, 1e9))
+  assert r["fid_k"]["share_at_least_compare"] == 1.0 and r["fid_g"]["share_at_least_compare"] == 0.0
   assert r["fid_k"]["official_percentile"] > 95 and r["official"]["fid_k"] > r["fid_k"]["p90"]
   # The geometric features do not single the validation set out.
   assert 5 < r["fid_g"]["official_percentile"] < 95

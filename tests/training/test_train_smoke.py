@@ -253,3 +253,32 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
       train.main(["--run", str(tmp_path / "never"), flag, bad])
     assert e.value.code == 2
   assert not (tmp_path / "never").exists()
+
+
+def test_aux_heads_predict_the_codes_two_and_more_steps_ahead():
+  from training.train_seq import AuxHeads
+  k = 16
+  cfg = SeqConfig(feature_dim=5, pre_dim=8, d_model=4, n_heads=2, codebook_size=k, n_styles=2, style_dim=4,
+                  attn_window=8)
+  toks = _tokens(n_clips=2, n=90, k=k)
+  for t in toks:  # code of step i = i mod k: the code j steps ahead of an input code c is (c + j) mod k
+    t["upper"] = np.arange(90) % k
+    t["lower"] = np.arange(90) % k
+  inputs, targets = make_batch(toks, cfg, np.random.default_rng(0), batch=8, steps=16)
+
+  class Ahead(torch.nn.Module):  # reads the input code from the hidden state, predicts it + j
+    def __init__(self, j):
+      super().__init__()
+      self.j = j
+
+    def forward(self, h):
+      return torch.nn.functional.one_hot((h[..., 0].long() + self.j) % k, k).float() * 50.0
+
+  aux = AuxHeads(4, k, steps=4)
+  aux.upper = torch.nn.ModuleList(Ahead(j) for j in (2, 3, 4))
+  aux.lower = torch.nn.ModuleList(Ahead(j) for j in (2, 3, 4))
+  y = torch.zeros(8, 16, 3, 4)
+  y[:, :, 1, 0], y[:, :, 2, 0] = inputs[2].float(), inputs[3].float()   # BOS (k) reads as code 0
+  assert float(aux.loss(y, targets)) < 1e-6
+  aux.upper[1] = Ahead(2)  # the 3-steps-ahead head off by one: the loss sees it
+  assert float(aux.loss(y, targets)) > 1.0

@@ -2,7 +2,7 @@
 with the validation's composition, each scored as the real row is (normaliser fitted on the held-out set,
 reference = every other paired Tang dance), over many random sets.
 
-    /usr/bin/python3 -m training.eval.real_spread [--draws 1000] [--seed 0]
+    /usr/bin/python3 -m training.eval.real_spread [--draws 1000] [--seed 0] [--compare FID_K FID_G]
 
 The validation set has one cha-cha, one rumba, the tango's last quarter and five waltzes. A random set draws
 the same numbers per style from all paired Tang dances; the tango, a single dance cut in time, always holds
@@ -62,8 +62,10 @@ def random_sets(ids: list[str], validation: list[str], draws: int, seed: int = 0
   return out
 
 
-def spread(tables: dict[str, dict], validation: list[str], draws: int, seed: int = 0) -> dict:
-  """The official set's FIDs, the random sets' FIDs, and where the official set falls among them."""
+def spread(tables: dict[str, dict], validation: list[str], draws: int, seed: int = 0,
+           compare: tuple[float, float] | None = None) -> dict:
+  """The official set's FIDs, the random sets' FIDs, and where the official set falls among them; with
+  `compare` (a model's FID_k, FID_g) also the share of random sets scoring at least as much."""
   official = held_out_fid(tables, validation)
   sets = random_sets(list(tables), validation, draws, seed)
   f = np.array([held_out_fid(tables, s) for s in sets])
@@ -71,7 +73,10 @@ def spread(tables: dict[str, dict], validation: list[str], draws: int, seed: int
   for j, key in enumerate(("fid_k", "fid_g")):
     out[key] = {"mean": float(f[:, j].mean()),
                 **{f"p{q}": float(np.percentile(f[:, j], q)) for q in (10, 25, 50, 75, 90)},
-                "official_percentile": float((f[:, j] < official[j]).mean() * 100)}
+                "official_percentile": float((f[:, j] < official[j]).mean() * 100),
+                "max": float(f[:, j].max())}
+    if compare is not None:
+      out[key]["share_at_least_compare"] = float((f[:, j] >= compare[j]).mean())
   return out
 
 
@@ -79,19 +84,25 @@ def main(argv=None) -> None:
   ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
   ap.add_argument("--draws", type=int, default=1000)
   ap.add_argument("--seed", type=int, default=0)
+  ap.add_argument("--compare", type=float, nargs=2, metavar=("FID_K", "FID_G"),
+                  help="a model's FIDs (e.g. engine_suite's means on the real spans): the share of real sets "
+                       "scoring at least as much")
   args = ap.parse_args(argv)
   if args.draws < 1:
     ap.error("--draws must be at least 1")
   validation = split_ids("validation")
   ids = split_ids("train") + validation
   tables = {d.name: segment_table([d], beats_of=lambda _d: np.zeros(0)) for d in cached_dances(ids)}
-  r = spread(tables, validation, args.draws, args.seed)
+  r = spread(tables, validation, args.draws, args.seed, args.compare)
   print(f"official validation set: FID_k {r['official']['fid_k']:.2f}, FID_g {r['official']['fid_g']:.2f}")
   print(f"{args.draws} random held-out sets of the same composition (percentiles 10 / 25 / 50 / 75 / 90):")
   for key, label in (("fid_k", "FID_k"), ("fid_g", "FID_g")):
     s = r[key]
     print(f"  {label}: mean {s['mean']:.2f}; {s['p10']:.2f} / {s['p25']:.2f} / {s['p50']:.2f} / {s['p75']:.2f} / "
-          f"{s['p90']:.2f}; the official set lies at percentile {s['official_percentile']:.0f}")
+          f"{s['p90']:.2f}; max {s['max']:.2f}; the official set lies at percentile {s['official_percentile']:.0f}")
+    if args.compare:
+      print(f"    real sets scoring at least {args.compare[key == 'fid_g']:.2f}: "
+            f"{100 * s['share_at_least_compare']:.1f} %")
 
 
 if __name__ == "__main__":
