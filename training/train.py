@@ -260,8 +260,9 @@ def pretrain_seq(args, cfg, vqs, factors, run: pathlib.Path, vq_run: pathlib.Pat
   a.run, a.out, a.vq_run = str(sub), str(out), str(vq_run)
   a.tempo_ref, a.seq_iters, a.init_model, a.weights_dtype = 0.0, args.pretrain_iters, None, "f32"
   a.model_id = "pretrain"  # an intermediate file: never the id given for the final export
-  # own-code inputs, the weight average and the carried state: the tempo-normalised phase only
-  a.own_inputs, a.ema, a.carry_state, a.aux_steps = 0.0, 0.0, False, 1
+  # own-code inputs, the weight average and the carried state: the tempo-normalised phase only (the
+  # multi-step heads, --aux-steps, train in both phases)
+  a.own_inputs, a.ema, a.carry_state = 0.0, 0.0, False
   sub.mkdir(parents=True, exist_ok=True)
   log(f"pretrain: fixed-rate phase, {a.seq_iters} iterations on tempo factors {factors}")
   train_seq.stage_seq(a, cfg, vqs, factors, sub, log)
@@ -367,7 +368,7 @@ def main(argv=None) -> int:
                        "(training.train_lanes; the tempo-normalised phase only when pretraining)")
   ap.add_argument("--aux-steps", type=int, default=1,
                   help="multi-step prediction: training-only heads also predict the codes 2..J steps ahead "
-                       "(train_seq.AuxHeads; the tempo-normalised phase only when pretraining; default 1: off)")
+                       "(train_seq.AuxHeads; both phases; default 1: off)")
   ap.add_argument("--aux-weight", type=float, default=0.5, help="weight of the --aux-steps loss")
   ap.add_argument("--ema", type=float, default=0.0,
                   help="decay of an exponential average of the sequence model's weights, which is then "
