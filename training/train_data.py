@@ -117,10 +117,11 @@ def load_clip(motion_id: str, factor: float = 1.0, with_music: bool = True, mirr
   return clip
 
 
-def style_reference_tempi(ids: list[str], default_bpm: float) -> dict[str, float]:
+def style_reference_tempi(ids: list[str], default_bpm: float, styles: list[str] | None = None) -> dict[str, float]:
   """Each style's typical tempo on the engine's tracker, from the paired songs in `ids`: the circular mean
   of log2(song tempo) modulo 1 (the song tempo is the tracker's median running tempo, whatever octave it
-  locked to), in the octave [75, 150). Styles without paired songs get `default_bpm`. Every song of a style
+  locked to), in the octave [75, 150). The styles are `styles` (a run's rows, styles_for; default: STYLES and
+  the other styles with songs in `ids`); those without paired songs get `default_bpm`. Every song of a style
   is then warped with the same reference, so its octave folds the same way at any tempo near the typical
   one (docs/model.md section 1)."""
   by_style: dict[str, list[float]] = {}
@@ -131,7 +132,7 @@ def style_reference_tempi(ids: list[str], default_bpm: float) -> dict[str, float
     tempo = extract_features(str(z["audio_path"]), cache_dir=FEATURE_CACHE)["summary"]["tempo_median_bpm"]
     by_style.setdefault(str(z["style"]), []).append(float(tempo))
   refs = {}
-  for style in [s for s in ALL_STYLES if s in STYLES or s in by_style]:
+  for style in styles if styles is not None else [s for s in ALL_STYLES if s in STYLES or s in by_style]:
     t = by_style.get(style)
     if not t:
       refs[style] = float(default_bpm)

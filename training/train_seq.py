@@ -153,7 +153,10 @@ def style_refs_of(args, run: pathlib.Path, log) -> dict[str, float] | None:
   path = run / "style_reference_bpm.json"
   if path.is_file():
     return json.loads(path.read_text())
-  refs = td.style_reference_tempi(td.paired_ids(td.load_split()["train"]), args.tempo_ref)
+  split = td.load_split()
+  # Every style row gets a reference, also a style whose songs all validate (AIST++'s test list).
+  rows = td.styles_for(td.paired_ids(split["train"] + split["validation"]))
+  refs = td.style_reference_tempi(td.paired_ids(split["train"]), args.tempo_ref, rows)
   log(f"style reference tempi (BPM): {json.dumps(refs)}")
   run.mkdir(parents=True, exist_ok=True)
   path.write_text(json.dumps(refs))

@@ -88,6 +88,8 @@ def test_an_aistpp_dance_trains_its_genres_style_row(tmp_path, monkeypatch, feat
   assert clip.features.shape == (len(clip.upper), 108) and abs(len(clip.upper) - SECONDS * 30) <= 2
   refs = td.style_reference_tempi([mid], 105.0)
   assert abs(refs["break"] - BPM) < 3 and refs["waltz"] == 105.0 and "krump" not in refs
+  rows = td.style_reference_tempi([mid], 105.0, td.ALL_STYLES)   # a run's rows: every one gets a reference
+  assert list(rows) == td.ALL_STYLES and rows["krump"] == 105.0 and rows["break"] == refs["break"]
 
   torch.manual_seed(0)
   vqs = {part: PoseVQVAE(VQConfig(in_dim=dim, width=16, code_dim=8, codebook_size=16, n_res=1))
