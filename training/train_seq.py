@@ -370,6 +370,9 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
     model.load_state_dict(ck["model"])
     if ema is not None and ck.get("ema") is not None:
       ema = ck["ema"]
+    if (aux is None) != (ck.get("aux") is None):
+      raise SystemExit(f"seq: {ck_path} was trained {'without' if aux is not None else 'with'} --aux-steps "
+                       "(its optimizer state does not fit): resume with the same option or use another --run")
     if aux is not None:
       aux.load_state_dict(ck["aux"])
     opt.load_state_dict(ck["opt"])
