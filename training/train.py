@@ -497,11 +497,10 @@ def main(argv=None) -> int:
       vqs = load_models(args.vq_model)[1]
     else:
       vqs = load_vqs(vq_run)
-    split = td.load_split()
     cfg = SeqConfig(d_model=args.d_model, n_head=args.n_head, codebook_size=vqs["upper"].cfg.codebook_size,
                     music_lookahead_steps=args.lookahead, use_pre=not args.no_pre,
                     use_gate=not args.no_gate, shared_mamba=args.shared_mamba,
-                    n_styles=len(td.styles_for(td.paired_ids(split["train"] + split["validation"]))))
+                    n_styles=len(td.run_styles(td.load_split())))
     factors = tuple(float(f) for f in args.tempo_factors.split(","))
     if "seq" in stages and args.tempo_ref > 0 and not args.init_model and args.pretrain_iters > 0:
       # From scratch on the warped timeline alone the model memorises the 31 training songs (measured:

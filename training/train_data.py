@@ -71,6 +71,11 @@ def styles_for(ids: list[str]) -> list[str]:
   return list(STYLES) if labels <= set(STYLES) else list(ALL_STYLES)
 
 
+def run_styles(split: dict) -> list[str]:
+  """The style rows of a model trained on `split`'s paired dances (training and validation): styles_for."""
+  return styles_for(paired_ids(split["train"] + split["validation"]))
+
+
 def load_split() -> dict:
   with open(REPO / "training" / "split.json") as f:
     return json.load(f)

@@ -155,8 +155,7 @@ def style_refs_of(args, run: pathlib.Path, log) -> dict[str, float] | None:
     return json.loads(path.read_text())
   split = td.load_split()
   # Every style row gets a reference, also a style whose songs all validate (AIST++'s test list).
-  rows = td.styles_for(td.paired_ids(split["train"] + split["validation"]))
-  refs = td.style_reference_tempi(td.paired_ids(split["train"]), args.tempo_ref, rows)
+  refs = td.style_reference_tempi(td.paired_ids(split["train"]), args.tempo_ref, td.run_styles(split))
   log(f"style reference tempi (BPM): {json.dumps(refs)}")
   run.mkdir(parents=True, exist_ok=True)
   path.write_text(json.dumps(refs))
@@ -390,6 +389,7 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
       model.pre.bn.eval()  # keep the folded statistics (identity) of the exported model
 
   carry = bool(getattr(args, "carry_state", False))
+  own = float(getattr(args, "own_inputs", 0.0))
   balance = float(getattr(args, "style_balance", 1.0))
   lanes = Lanes(train_toks, cfg, rng, args.batch, STEPS, balance) if carry else None
   carried = None
@@ -417,7 +417,6 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
       inputs, targets = make_batch(train_toks, cfg, rng, batch=args.batch, code_mask=args.code_mask,
                                    style_dropout=STYLE_DROPOUT,
                                    style_balance=balance)
-    own = float(getattr(args, "own_inputs", 0.0))
     if own > 0:
       inputs = own_code_inputs(model, inputs, own, state=carried)
     trace = {} if aux is not None else None

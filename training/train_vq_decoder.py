@@ -224,17 +224,19 @@ class OwnCodes:
 
 def load_own_codes(directory: str, part: str) -> list[tuple[int, np.ndarray]]:
   """Every dance file in `directory` (dance-generate JSON, one style each) -> (style index, step codes)."""
-  from training.train_data import ALL_STYLES, style_index
+  from training.train_data import style_index
   out = []
   for p in sorted(pathlib.Path(directory).glob("*.json")):
     d = json.loads(p.read_text())
     if not d.get("style") or not d.get("upper_codes") or not d.get("lower_codes"):
       raise ValueError(f"{p}: not a dance-generate file with a style and per-frame codes")
     style = max(d["style"].items(), key=lambda kv: kv[1])[0]
-    if style not in ALL_STYLES:
-      raise ValueError(f"{p}: style '{style}' is not one of {ALL_STYLES}")
+    try:
+      row = style_index(style)
+    except ValueError as e:
+      raise ValueError(f"{p}: {e}") from None
     up, low = step_codes(d["upper_codes"], d["lower_codes"])
-    out.append((style_index(style), up if part == "upper" else low))
+    out.append((row, up if part == "upper" else low))
   if not out:
     raise ValueError(f"no dance files (*.json) in {directory}")
   return out
