@@ -414,6 +414,23 @@ def test_free_run_feeds_the_models_own_draws_and_teacher_forcing_the_real_codes(
     np.testing.assert_array_equal(fu, np.tile(np.arange(1, 7), (2, 1)))  # BOS -> 1 -> 2 ...: its own draws
     np.testing.assert_array_equal(fl, fu)
 
+  class Habit(Successor):  # reading only BOS (no history) it predicts code 3; otherwise the successor
+    def step(self, music, pre, u, l, style_w, state):
+      if bool((u == k).all()) and state is not None:
+        return peaked(torch.full_like(u, 2)), peaked(torch.full_like(l, 2)), state + 1
+      return super().step(music, pre, u, l, style_w, state)
+
+  # h = 0: the history branch is not run. h = -2 inverts it: logits = 2 l_nh - l_c, so every draw is the
+  # no-history prediction (3), which is only reachable when that branch reads BOS for every input code.
+  fu, _ = free_running_draws(Habit(), t, 2, gen, history_guidance=0.0)
+  np.testing.assert_array_equal(fu, np.tile(np.arange(1, 7), (2, 1)))
+  fu, fl = free_running_draws(Habit(), t, 2, gen, history_guidance=-2.0, history_mask=1.0)
+  np.testing.assert_array_equal(fu[:, 1:], np.full((2, 5), 3))
+  np.testing.assert_array_equal(fl[:, 1:], np.full((2, 5), 3))
+  # With nothing masked the history branch reads the draws themselves: l_nh = l_c, no change.
+  fu, _ = free_running_draws(Habit(), t, 2, gen, history_guidance=-2.0, history_mask=0.0)
+  np.testing.assert_array_equal(fu, np.tile(np.arange(1, 7), (2, 1)))
+
 
 def test_real_spread_draws_the_validations_composition_and_ranks_an_outlying_set_high():
   from training.eval import real_spread

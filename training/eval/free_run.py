@@ -2,7 +2,7 @@
 codes? (docs/training.md, "Free-running loses the energetic styles' energy").
 
     /usr/bin/python3 -m training.eval.free_run --model M.dncw --tokens RUN/tokens_train_warp_....pt
-        [--songs ID ...] [--draws 4] [--guidance 1] [--seed 0]
+        [--songs ID ...] [--draws 4] [--guidance 1] [--seed 0] [--history-guidance H --history-mask P]
 
 For each song of a token cache (a training run's `tokens_*.pt`; the tempo factor 1 clips), on the warped
 timeline the model was trained on and with the model's VQ decoders:
@@ -61,9 +61,14 @@ def teacher_forced_draws(model, t: dict, draws: int, gen: torch.Generator) -> tu
 
 
 @torch.no_grad()
-def free_running_draws(model, t: dict, draws: int, gen: torch.Generator, guidance: float = 1.0):
+def free_running_draws(model, t: dict, draws: int, gen: torch.Generator, guidance: float = 1.0,
+                       history_guidance: float = 0.0, history_mask: float = 1.0, mask_seed: int = 0):
   """(draws, T) codes drawn step by step from BOS, the model reading its own draws; style guidance w
-  combines the logits as the engine does (docs/model.md section 6)."""
+  combines the logits as the engine does (docs/model.md section 6).
+  history_guidance h (an experiment, not in the engine): logits + h (l_c - l_nh), l_c the style-conditioned
+  prediction and l_nh the same model (its own state set) reading the draws with each input code replaced by
+  BOS with probability history_mask (1: every code, the prediction from the music and style alone; 0.4: the
+  training's past-motion dropout); h > 0 favours what the dance's own history adds over the music alone."""
   cfg, k = model.cfg, model.cfg.codebook_size
   n = len(t["upper"]) - 1
   music = torch.from_numpy(np.asarray(t["music"][:n])).float()
@@ -71,14 +76,22 @@ def free_running_draws(model, t: dict, draws: int, gen: torch.Generator, guidanc
   cond = one_hot_style(draws, t["style"], cfg.n_styles)
   uncond = one_hot_style(draws, -1, cfg.n_styles)
   u, l = torch.full((draws,), k), torch.full((draws,), k)
-  sc = su = None
+  sc = su = sn = None
+  rng = np.random.default_rng(mask_seed)
   gu, gl = [], []
   for i in range(n):
     m, p = music[i].expand(draws, -1), pre[i].expand(draws, -1)
-    lu, ll, sc = model.step(m, p, u, l, cond, sc)
+    cu, cl, sc = model.step(m, p, u, l, cond, sc)
+    lu, ll = cu, cl
     if guidance != 1.0:
       uu, ul, su = model.step(m, p, u, l, uncond, su)
-      lu, ll = uu + guidance * (lu - uu), ul + guidance * (ll - ul)
+      lu, ll = uu + guidance * (cu - uu), ul + guidance * (cl - ul)
+    if history_guidance != 0.0:
+      nu, nl = u.clone(), l.clone()
+      nu[torch.from_numpy(rng.random(draws) < history_mask)] = k
+      nl[torch.from_numpy(rng.random(draws) < history_mask)] = k
+      hu, hl, sn = model.step(m, p, nu, nl, cond, sn)
+      lu, ll = lu + history_guidance * (cu - hu), ll + history_guidance * (cl - hl)
     u = torch.multinomial(torch.softmax(lu, -1), 1, generator=gen)[:, 0]
     l = torch.multinomial(torch.softmax(ll, -1), 1, generator=gen)[:, 0]
     gu.append(u)
@@ -92,14 +105,16 @@ def kinetic_mean(ev: Evaluator, dances: list[Dance]) -> np.ndarray:
   return ev.norm_k.apply(t["kinetic"]).mean(0)
 
 
-def compare_song(model, vqs, ev: Evaluator, t: dict, draws: int, seed: int, guidance: float, skel) -> dict:
+def compare_song(model, vqs, ev: Evaluator, t: dict, draws: int, seed: int, guidance: float, skel,
+                 history_guidance: float = 0.0, history_mask: float = 1.0) -> dict:
   gen = torch.Generator().manual_seed(seed)
   n = len(t["upper"]) - 1
   real = kinetic_mean(ev, [decode_codes(vqs, np.asarray(t["upper"][1:n + 1]), np.asarray(t["lower"][1:n + 1]),
                                         t["id"], skel)])
   out = {"song": t["id"], "real": float(real.mean())}
   for label, (cu, cl) in (("teacher_forced", teacher_forced_draws(model, t, draws, gen)),
-                          ("free_running", free_running_draws(model, t, draws, gen, guidance))):
+                          ("free_running", free_running_draws(model, t, draws, gen, guidance, history_guidance,
+                                                              history_mask, seed))):
     x = kinetic_mean(ev, [decode_codes(vqs, cu[i], cl[i], t["id"], skel) for i in range(draws)])
     out[label] = float(x.mean())
     out[label + "_distance"] = float(np.linalg.norm(x - real))
@@ -114,7 +129,13 @@ def main(argv=None) -> None:
   ap.add_argument("--draws", type=int, default=4)
   ap.add_argument("--guidance", type=float, default=1.0, help="style guidance of the free-running draws")
   ap.add_argument("--seed", type=int, default=0)
+  ap.add_argument("--history-guidance", type=float, default=0.0,
+                  help="free-running draws: + H (l_c - l_nh), l_nh the prediction with the history masked")
+  ap.add_argument("--history-mask", type=float, default=1.0,
+                  help="share of input codes set to BOS for l_nh (1: all; 0.4: the training's dropout)")
   args = ap.parse_args(argv)
+  if not 0.0 <= args.history_mask <= 1.0:
+    ap.error("--history-mask must be in [0, 1]")
   if args.draws < 1:
     ap.error("--draws must be at least 1")
   torch.set_grad_enabled(False)
@@ -130,7 +151,8 @@ def main(argv=None) -> None:
         "distance to real: teacher-forced / free-running")
   rows = []
   for t in toks:
-    r = compare_song(model, vqs, ev, t, args.draws, args.seed, args.guidance, skel)
+    r = compare_song(model, vqs, ev, t, args.draws, args.seed, args.guidance, skel, args.history_guidance,
+                     args.history_mask)
     rows.append(r)
     print(f"{r['song']:<18} {r['real']:+6.2f} / {r['teacher_forced']:+6.2f} / {r['free_running']:+6.2f} | "
           f"{r['teacher_forced_distance']:5.2f} / {r['free_running_distance']:5.2f}", flush=True)
