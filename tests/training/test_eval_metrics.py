@@ -427,6 +427,18 @@ def test_free_run_feeds_the_models_own_draws_and_teacher_forcing_the_real_codes(
   fu, fl = free_running_draws(Habit(), t, 2, gen, history_guidance=-2.0, history_mask=1.0)
   np.testing.assert_array_equal(fu[:, 1:], np.full((2, 5), 3))
   np.testing.assert_array_equal(fl[:, 1:], np.full((2, 5), 3))
+  # --fid pools draw i of every song into one set per draw (and the real decode once).
+  from training.eval.free_run import fid_of_sets
+
+  class Names:
+    def fid_div(self, dances):
+      return {"dances": list(dances)}
+  rows = [{"dances": {"real": [f"{s}r"], "teacher_forced": [f"{s}t0", f"{s}t1"],
+                      "free_running": [f"{s}f0", f"{s}f1"]}} for s in ("a", "b")]
+  sets = fid_of_sets(Names(), rows)
+  assert [d["dances"] for d in sets["real"]] == [["ar", "br"]]
+  assert [d["dances"] for d in sets["free_running"]] == [["af0", "bf0"], ["af1", "bf1"]]
+  assert [d["dances"] for d in sets["teacher_forced"]] == [["at0", "bt0"], ["at1", "bt1"]]
   # With nothing masked the history branch reads the draws themselves: l_nh = l_c, no change.
   fu, _ = free_running_draws(Habit(), t, 2, gen, history_guidance=-2.0, history_mask=0.0)
   np.testing.assert_array_equal(fu, np.tile(np.arange(1, 7), (2, 1)))

@@ -2,7 +2,7 @@
 codes? (docs/training.md, "Free-running loses the energetic styles' energy").
 
     /usr/bin/python3 -m training.eval.free_run --model M.dncw --tokens RUN/tokens_train_warp_....pt
-        [--songs ID ...] [--draws 4] [--guidance 1] [--seed 0] [--history-guidance H --history-mask P]
+        [--songs ID ...] [--draws 4] [--guidance 1] [--seed 0] [--history-guidance H --history-mask P] [--fid]
 
 For each song of a token cache (a training run's `tokens_*.pt`; the tempo factor 1 clips), on the warped
 timeline the model was trained on and with the model's VQ decoders:
@@ -13,7 +13,9 @@ timeline the model was trained on and with the model's VQ decoders:
 Each is cut into the evaluator's 10-s segments; the table gives each set's mean normalised kinetic feature
 (higher = more energetic) and the distance of its average kinetic features to the real decode's. A model
 that fits its training songs but drifts on its own codes shows a small teacher-forced distance and a large
-free-running one.
+free-running one. --fid adds the FID of each set with the songs pooled (on a validation token cache, whose
+clips are the real dances' spans: where the model's FID comes from, docs/training.md "How the model scales
+with its training songs").
 """
 from __future__ import annotations
 
@@ -107,17 +109,31 @@ def kinetic_mean(ev: Evaluator, dances: list[Dance]) -> np.ndarray:
 
 def compare_song(model, vqs, ev: Evaluator, t: dict, draws: int, seed: int, guidance: float, skel,
                  history_guidance: float = 0.0, history_mask: float = 1.0) -> dict:
+  """The song's table row; under "dances" the decoded sets (real: one dance; the others: one per draw)."""
   gen = torch.Generator().manual_seed(seed)
   n = len(t["upper"]) - 1
-  real = kinetic_mean(ev, [decode_codes(vqs, np.asarray(t["upper"][1:n + 1]), np.asarray(t["lower"][1:n + 1]),
-                                        t["id"], skel)])
-  out = {"song": t["id"], "real": float(real.mean())}
+  real_dance = decode_codes(vqs, np.asarray(t["upper"][1:n + 1]), np.asarray(t["lower"][1:n + 1]), t["id"], skel)
+  real = kinetic_mean(ev, [real_dance])
+  out = {"song": t["id"], "real": float(real.mean()), "dances": {"real": [real_dance]}}
   for label, (cu, cl) in (("teacher_forced", teacher_forced_draws(model, t, draws, gen)),
                           ("free_running", free_running_draws(model, t, draws, gen, guidance, history_guidance,
                                                               history_mask, seed))):
-    x = kinetic_mean(ev, [decode_codes(vqs, cu[i], cl[i], t["id"], skel) for i in range(draws)])
+    dances = [decode_codes(vqs, cu[i], cl[i], t["id"], skel) for i in range(draws)]
+    x = kinetic_mean(ev, dances)
+    out["dances"][label] = dances
     out[label] = float(x.mean())
     out[label + "_distance"] = float(np.linalg.norm(x - real))
+  return out
+
+
+def fid_of_sets(ev: Evaluator, rows: list[dict]) -> dict[str, list[dict]]:
+  """Per set (real codes, teacher-forced, free-running) and draw: FID_k / FID_g / Div of the draw's dances of
+  every song pooled (Evaluator.fid_div), so the FID splits into what decoding real codes costs, what drawing
+  each step given the real history adds, and what reading the model's own draws adds."""
+  out = {}
+  for label in ("real", "teacher_forced", "free_running"):
+    n = len(rows[0]["dances"][label])
+    out[label] = [ev.fid_div([r["dances"][label][i] for r in rows]) for i in range(n)]
   return out
 
 
@@ -133,6 +149,8 @@ def main(argv=None) -> None:
                   help="free-running draws: + H (l_c - l_nh), l_nh the prediction with the history masked")
   ap.add_argument("--history-mask", type=float, default=1.0,
                   help="share of input codes set to BOS for l_nh (1: all; 0.4: the training's dropout)")
+  ap.add_argument("--fid", action="store_true",
+                  help="also FID_k / FID_g of each set with every song pooled (use a validation token cache)")
   args = ap.parse_args(argv)
   if not 0.0 <= args.history_mask <= 1.0:
     ap.error("--history-mask must be in [0, 1]")
@@ -161,6 +179,11 @@ def main(argv=None) -> None:
           f"{np.mean([r['teacher_forced'] for r in rows]):+6.2f} / {np.mean([r['free_running'] for r in rows]):+6.2f} | "
           f"{np.mean([r['teacher_forced_distance'] for r in rows]):5.2f} / "
           f"{np.mean([r['free_running_distance'] for r in rows]):5.2f}")
+  if args.fid:
+    for label, draws in fid_of_sets(ev, rows).items():
+      fk, fg = [d["fid_k"] for d in draws], [d["fid_g"] for d in draws]
+      print(f"FID {label:<15} FID_k {np.mean(fk):6.2f} ({' '.join(f'{v:.2f}' for v in fk)})  "
+            f"FID_g {np.mean(fg):5.2f} ({' '.join(f'{v:.2f}' for v in fg)})  segments {draws[0]['segments']}")
 
 
 if __name__ == "__main__":
