@@ -363,6 +363,9 @@ def main(argv=None) -> int:
   ap.add_argument("--own-inputs", type=float, default=0.0,
                   help="share of the sequence model's non-BOS input codes replaced by its own draws (parallel "
                        "scheduled sampling; the tempo-normalised phase only when pretraining; default 0)")
+  ap.add_argument("--own-passes", type=int, default=1,
+                  help="with --own-inputs: repeat the replacement on the mixed inputs this many times, so "
+                       "inputs hold up to this many steps of the model's own drift (default 1)")
   ap.add_argument("--carry-state", action="store_true",
                   help="train the sequence model on whole songs window by window with its state carried "
                        "(training.train_lanes; the tempo-normalised phase only when pretraining)")
@@ -472,6 +475,8 @@ def main(argv=None) -> int:
     ap.error(f"--aux-steps must be in 1..16 and --aux-weight >= 0, got {args.aux_steps}, {args.aux_weight}")
   if not 0.0 <= args.own_inputs <= 1.0:
     ap.error(f"--own-inputs must be in [0, 1], got {args.own_inputs}")
+  if args.own_passes < 1:
+    ap.error(f"--own-passes must be at least 1, got {args.own_passes}")
   if not 0.0 <= args.style_balance <= 1.0:
     ap.error(f"--style-balance must be in [0, 1], got {args.style_balance}")
   torch.set_num_threads(args.threads)

@@ -193,23 +193,27 @@ def bar_clock_of(args) -> dict | None:
 
 
 def own_code_inputs(model, inputs, p: float, generator: torch.Generator | None = None,
-                    state: dict | None = None) -> tuple:
+                    state: dict | None = None, passes: int = 1) -> tuple:
   """`inputs` with each non-BOS input code of steps 1.. replaced, with probability p, by a code drawn from
   the model's own prediction for that step (from the same inputs and carried `state`, no gradient). Step 0
-  and BOS stay."""
+  and BOS stay. passes > 1 repeats this on the mixed inputs, so a draw of pass k was predicted from a
+  history that holds draws of pass k - 1: after k passes an input can be k steps of the model's own drift
+  from the real history (multi-pass parallel scheduled sampling)."""
   music, pre, u, l, sw = inputs
   k = model.cfg.codebook_size
   with torch.no_grad():
-    lu, ll, _ = model.forward_with_state(*inputs, state)
-    out = []
-    for codes, logits in ((u, lu), (l, ll)):
-      drawn = torch.multinomial(torch.softmax(logits[:, :-1].flatten(0, 1), -1), 1, generator=generator)
-      drawn = drawn.view(codes.shape[0], codes.shape[1] - 1)
-      swap = (torch.rand(drawn.shape, generator=generator) < p) & (codes[:, 1:] != k)
-      mixed = codes.clone()
-      mixed[:, 1:] = torch.where(swap, drawn, codes[:, 1:])
-      out.append(mixed)
-  return music, pre, out[0], out[1], sw
+    for _ in range(passes):
+      lu, ll, _ = model.forward_with_state(music, pre, u, l, sw, state)
+      out = []
+      for codes, logits in ((u, lu), (l, ll)):
+        drawn = torch.multinomial(torch.softmax(logits[:, :-1].flatten(0, 1), -1), 1, generator=generator)
+        drawn = drawn.view(codes.shape[0], codes.shape[1] - 1)
+        swap = (torch.rand(drawn.shape, generator=generator) < p) & (codes[:, 1:] != k)
+        mixed = codes.clone()
+        mixed[:, 1:] = torch.where(swap, drawn, codes[:, 1:])
+        out.append(mixed)
+      u, l = out
+  return music, pre, u, l, sw
 
 
 def loss_of(model, inputs, targets) -> torch.Tensor:
@@ -390,6 +394,7 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
 
   carry = bool(getattr(args, "carry_state", False))
   own = float(getattr(args, "own_inputs", 0.0))
+  own_passes = int(getattr(args, "own_passes", 1))
   balance = float(getattr(args, "style_balance", 1.0))
   lanes = Lanes(train_toks, cfg, rng, args.batch, STEPS, balance) if carry else None
   carried = None
@@ -418,7 +423,7 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
                                    style_dropout=STYLE_DROPOUT,
                                    style_balance=balance)
     if own > 0:
-      inputs = own_code_inputs(model, inputs, own, state=carried)
+      inputs = own_code_inputs(model, inputs, own, state=carried, passes=own_passes)
     trace = {} if aux is not None else None
     lu, ll, after = model.forward_with_state(*inputs, carried, trace)
     if lanes is not None:

@@ -77,6 +77,29 @@ def test_own_code_inputs_replace_real_codes_by_the_models_draws():
   assert 0.25 < float(changed) < 0.35
 
 
+def test_own_code_input_passes_compound_the_models_own_drift():
+  k = 16
+
+  class Successor:  # predicts at step t the code it read at step t, plus one: the next code is "input + 1"
+    cfg = SeqConfig(codebook_size=k)
+
+    def forward_with_state(self, music, pre, u, l, sw, state):
+      return (torch.nn.functional.one_hot((u + 1) % k, k).float() * 100.0,
+              torch.nn.functional.one_hot((l + 1) % k, k).float() * 100.0, state)
+
+  u = torch.tensor([[k, 5, 9, 0, 3, 3, 7]])
+  inputs = (torch.zeros(1, 7, 4), torch.zeros(1, 7, 2), u, u.clone(), torch.zeros(1, 3))
+  for passes in (1, 2, 3):
+    _, _, mu, ml, _ = own_code_inputs(Successor(), inputs, 1.0, passes=passes)
+    # After n passes input t is the model's n-step continuation of the real code n steps back (t >= n).
+    expected = u.clone()
+    for t in range(1, 7):
+      src = max(t - passes, 0)
+      expected[0, t] = (u[0, src] + (t - src)) % k  # BOS (k) continues like code 0: 1, 2, ...
+    assert torch.equal(mu, expected), (passes, mu, expected)
+    assert torch.equal(ml, mu)
+
+
 def test_batch_targets_are_next_period_codes():
   cfg = SeqConfig(feature_dim=5, pre_dim=8, codebook_size=16, n_styles=2)
   toks = _tokens(n_clips=1, n=40)
@@ -248,7 +271,7 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
   # The owndec stage's seeds and weights.
   for flag, bad in (("--own-seeds", "1,x"), ("--own-seeds", ""), ("--own-weight", "-1"), ("--own-weight", "lower=x"), ("--own-anchor", "-0.5"),
                     ("--own-iters", "-3"), ("--style-balance", "-0.1"), ("--style-balance", "1.5"),
-                    ("--own-inputs", "-0.1"), ("--own-inputs", "1.5")):
+                    ("--own-inputs", "-0.1"), ("--own-inputs", "1.5"), ("--own-passes", "0")):
     with pytest.raises(SystemExit) as e:
       train.main(["--run", str(tmp_path / "never"), flag, bad])
     assert e.value.code == 2
