@@ -477,6 +477,8 @@ def main(argv=None) -> int:
     ap.error(f"--own-inputs must be in [0, 1], got {args.own_inputs}")
   if args.own_passes < 1:
     ap.error(f"--own-passes must be at least 1, got {args.own_passes}")
+  if args.own_passes > 1 and args.own_inputs == 0:
+    ap.error("--own-passes repeats --own-inputs' replacement: give --own-inputs P > 0 too")
   if not 0.0 <= args.style_balance <= 1.0:
     ap.error(f"--style-balance must be in [0, 1], got {args.style_balance}")
   torch.set_num_threads(args.threads)

@@ -271,7 +271,8 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
   # The owndec stage's seeds and weights.
   for flag, bad in (("--own-seeds", "1,x"), ("--own-seeds", ""), ("--own-weight", "-1"), ("--own-weight", "lower=x"), ("--own-anchor", "-0.5"),
                     ("--own-iters", "-3"), ("--style-balance", "-0.1"), ("--style-balance", "1.5"),
-                    ("--own-inputs", "-0.1"), ("--own-inputs", "1.5"), ("--own-passes", "0")):
+                    ("--own-inputs", "-0.1"), ("--own-inputs", "1.5"), ("--own-passes", "0"),
+                    ("--own-passes", "3")):  # without --own-inputs it would do nothing
     with pytest.raises(SystemExit) as e:
       train.main(["--run", str(tmp_path / "never"), flag, bad])
     assert e.value.code == 2
