@@ -56,6 +56,7 @@ let serverBeats = false;  // once the server sends beats, the page's own tracker
 let tracker = null;
 let lastControl = null;
 let lastEvent = null;
+let controlsApplied = 0;  // control_applied events on this page (events can share a frame index)
 let mode = 'idle';    // idle | file | mic | watch
 // Frames arrive in bursts of one model step (4 frames, 133 ms): a clock driven by arrivals buffers a step.
 const kStepMs = 4000 / 30;
@@ -104,6 +105,7 @@ function newConnection() {
     onEvent: (msg) => {
       if (c !== connection) return;
       lastEvent = msg;
+      if (msg.kind === 'control_applied') ++controlsApplied;
       if (msg.kind === 'control_applied') setStatus(`applied at frame ${msg.frame_index}`, 'live');
       else if (msg.kind === 'warning') console.info('server warning:', msg.message);
     },
@@ -375,6 +377,7 @@ window.danceStats = () => ({
   display: displayTimer.summary(),
   lastControl,
   lastEvent,
+  controlsApplied,
   trackerBpm: tracker ? tracker.bpm : null,
   style: ui.style.value,
   styles: Array.from(ui.style.options, (o) => o.value),
