@@ -263,6 +263,7 @@ def pretrain_seq(args, cfg, vqs, factors, run: pathlib.Path, vq_run: pathlib.Pat
   # own-code inputs, the weight average and the carried state: the tempo-normalised phase only (the
   # multi-step heads, --aux-steps, train in both phases)
   a.own_inputs, a.ema, a.carry_state = 0.0, 0.0, False
+  a.self_tokens = None  # the model's own draws are on the warped timeline
   sub.mkdir(parents=True, exist_ok=True)
   log(f"pretrain: fixed-rate phase, {a.seq_iters} iterations on tempo factors {factors}")
   train_seq.stage_seq(a, cfg, vqs, factors, sub, log)
@@ -379,6 +380,11 @@ def main(argv=None) -> int:
   ap.add_argument("--style-balance", type=float, default=0.5,
                   help="sequence model: each style's share of the training windows goes as (its windows) ** B "
                        "(train_seq.window_probs): 1 = the data's shares (waltz ~58 %%, tango ~4 %%), 0 = equal")
+  ap.add_argument("--self-tokens", default=None,
+                  help="filtered self-training: also train on these clips of the model's own kept draws "
+                       "(training.self_rollouts; with --init-model the model that drew them)")
+  ap.add_argument("--self-share", type=float, default=0.5,
+                  help="with --self-tokens: their share of the training windows (default 0.5)")
   ap.add_argument("--dropout", type=float, default=0.0,
                   help="sequence model: dropout on every residual branch's output, training only (not in the "
                        "weights file; the engine and eval mode never drop)")
@@ -479,6 +485,12 @@ def main(argv=None) -> int:
     ap.error(f"--own-passes must be at least 1, got {args.own_passes}")
   if args.own_passes > 1 and args.own_inputs == 0:
     ap.error("--own-passes repeats --own-inputs' replacement: give --own-inputs P > 0 too")
+  if not 0.0 < args.self_share < 1.0:
+    ap.error(f"--self-share must be in (0, 1), got {args.self_share}")
+  if args.self_tokens and not pathlib.Path(args.self_tokens).is_file():
+    ap.error(f"--self-tokens: no file {args.self_tokens}")
+  if args.self_tokens and args.carry_state:
+    ap.error("--self-tokens is not supported with --carry-state (whole-song lanes)")
   if not 0.0 <= args.style_balance <= 1.0:
     ap.error(f"--style-balance must be in [0, 1], got {args.style_balance}")
   torch.set_num_threads(args.threads)

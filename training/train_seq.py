@@ -86,12 +86,14 @@ def build_tokens(ids, factors, vqs, log, cache: pathlib.Path | None = None,
   return toks
 
 
-def window_probs(toks, ok, steps: int, style_balance: float = 1.0) -> np.ndarray:
+def window_probs(toks, ok, steps: int, style_balance: float = 1.0, self_share: float | None = None) -> np.ndarray:
   """How often each usable clip (indices `ok`) is drawn: in proportion to its number of window starts, with
   each style's total share then set in proportion to (its windows) ** style_balance. 1 keeps the data's
   shares (waltz ~58 % of the Tang training steps, tango ~4 %); 0 gives every style the same share; 0.5 is
   in between. Within a style the clips keep their relative weights. A song's versions (tempo factors,
-  mirror images) share its weight: augmenting some songs more than others does not change their shares."""
+  mirror images) share its weight: augmenting some songs more than others does not change their shares.
+  self_share: the model's own kept draws (clips with ids "self:...", training.self_rollouts) then get this
+  share of the windows and the real clips the rest (None: by their lengths like any clip)."""
   lens = np.array([len(toks[j]["upper"]) for j in ok], np.float64) - steps
   versions = collections.Counter(toks[j].get("id") for j in ok)
   if len(set(versions.values())) > 1:  # (equal counts: the same shares, left bit-exact)
@@ -103,18 +105,23 @@ def window_probs(toks, ok, steps: int, style_balance: float = 1.0) -> np.ndarray
       share = probs[styles == st].sum()
       probs[styles == st] *= share ** style_balance / share
     probs /= probs.sum()
+  if self_share is not None:
+    own = np.array([str(toks[j].get("id", "")).startswith("self:") for j in ok])
+    if own.any() and (~own).any():
+      probs[own] *= self_share / probs[own].sum()
+      probs[~own] *= (1.0 - self_share) / probs[~own].sum()
   return probs
 
 
 def make_batch(toks, cfg: SeqConfig, rng, batch=BATCH, steps=STEPS, code_mask=0.0, style_dropout=0.0,
-               music_from=None, style_balance: float = 1.0):
+               music_from=None, style_balance: float = 1.0, self_share: float | None = None):
   """Random windows. Inputs: codes of periods t0..t0+L-1 (BOS at the song start), music of t+s.
   music_from: optional list of clips to take the music from instead (music-ablation); style_balance:
-  window_probs."""
+  window_probs; self_share: window_probs."""
   s, k = cfg.music_lookahead_steps, cfg.codebook_size
   lens = np.array([len(t["upper"]) for t in toks])
   ok = np.flatnonzero(lens > steps + s + 1)
-  probs = window_probs(toks, ok, steps, style_balance)
+  probs = window_probs(toks, ok, steps, style_balance, self_share)
   mus, pres, us, ls, tu, tl, sw = [], [], [], [], [], [], []
   for j in rng.choice(ok, batch, p=probs):
     t = toks[j]
@@ -321,6 +328,14 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
     train_toks = [t for t in train_toks if t["factor"] == 1.0 or t["style"] in keep]
     log(f"seq: tempo factors {warp_factors} for {warp_styles} only: {len(train_toks)} clips")
   val_toks = build_tokens(val_ids, (1.0,), vqs, log, vq_dir / f"tokens_val_{tag}.pt", refs, bars, fold_tempo=fold)
+  self_tokens, self_share = getattr(args, "self_tokens", None), getattr(args, "self_share", None)
+  if self_tokens:  # filtered self-training (training.self_rollouts): the model's own kept draws
+    extra = torch.load(self_tokens)
+    if extra and len(extra[0]["music"][0]) != len(train_toks[0]["music"][0]):
+      raise SystemExit(f"seq: {self_tokens} has music features of another width than this run's tokens")
+    train_toks = train_toks + extra
+    log(f"seq: {len(extra)} clips of the model's own kept draws from {self_tokens} "
+        f"({sum(len(t['upper']) for t in extra)} steps), share of the windows {self_share}")
   torch.manual_seed(0)
   rng = np.random.default_rng(0)
   if args.init_model:
@@ -421,7 +436,7 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
     else:
       inputs, targets = make_batch(train_toks, cfg, rng, batch=args.batch, code_mask=args.code_mask,
                                    style_dropout=STYLE_DROPOUT,
-                                   style_balance=balance)
+                                   style_balance=balance, self_share=self_share if self_tokens else None)
     if own > 0:
       inputs = own_code_inputs(model, inputs, own, state=carried, passes=own_passes)
     trace = {} if aux is not None else None

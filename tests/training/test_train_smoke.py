@@ -272,10 +272,15 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
   for flag, bad in (("--own-seeds", "1,x"), ("--own-seeds", ""), ("--own-weight", "-1"), ("--own-weight", "lower=x"), ("--own-anchor", "-0.5"),
                     ("--own-iters", "-3"), ("--style-balance", "-0.1"), ("--style-balance", "1.5"),
                     ("--own-inputs", "-0.1"), ("--own-inputs", "1.5"), ("--own-passes", "0"),
-                    ("--own-passes", "3")):  # without --own-inputs it would do nothing
+                    ("--own-passes", "3"),  # without --own-inputs it would do nothing
+                    ("--self-share", "0"), ("--self-share", "1"), ("--self-tokens", str(tmp_path / "none.pt"))):
     with pytest.raises(SystemExit) as e:
       train.main(["--run", str(tmp_path / "never"), flag, bad])
     assert e.value.code == 2
+  (tmp_path / "own.pt").write_bytes(b"")
+  with pytest.raises(SystemExit) as e:  # whole-song lanes do not mix in the own draws
+    train.main(["--run", str(tmp_path / "never"), "--self-tokens", str(tmp_path / "own.pt"), "--carry-state"])
+  assert e.value.code == 2
   assert not (tmp_path / "never").exists()
 
 
