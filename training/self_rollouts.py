@@ -10,9 +10,11 @@ drifts. Its training only ever showed it real histories. Here it is shown its ow
 continuations it is taught are its own draws too, but only the segments that look most like real dancing of
 the style (one round of expert iteration, with a per-segment realism score as the reward).
 
-Score of a segment: its normalised kinetic and geometric features (the evaluator's, training.eval.evaluate),
-the distance to the nearest real training segment of the same style, each part divided by the root of its
-dimension and the two summed. Per style, the segments scoring below the `keep` quantile of that style's draws
+Score of a segment (--reward style): its normalised kinetic and geometric features (the evaluator's,
+training.eval.evaluate), the distance to the nearest real training segment of the same style, each part
+divided by the root of its dimension and the two summed; --reward song: the same distance to the song's own
+real dance over the same song time (the continuations that, from the model's own history, land where the real
+dancer was). Per style, the segments scoring below the `keep` quantile of that style's draws
 are kept; runs of consecutive kept segments of a draw become clips in the token format of
 train_seq.build_tokens (the song's music and PRE over those steps, the draw's codes), with the id
 "self:<song>:<draw>:<first segment>". train.py --self-tokens adds them to the training clips.
@@ -58,6 +60,20 @@ class SegmentScorer:
     dg = np.linalg.norm(g[:, None] - rg[None], axis=-1) / np.sqrt(g.shape[1])
     return (dk + dg).min(1)
 
+  def scores_against(self, dances, real) -> np.ndarray:
+    """One score per 10-s segment of `dances` (in order): the distance to the segment of the song's real
+    dance `real` (a Dance on the same timeline) over the same song time."""
+    t = segment_table(dances, beats_of=lambda d: np.zeros(0))
+    r = segment_table([real], beats_of=lambda d: np.zeros(0))
+    k, g = self.ev.norm_k.apply(t["kinetic"]), self.ev.norm_g.apply(t["geometric"])
+    rk, rg = self.ev.norm_k.apply(r["kinetic"]), self.ev.norm_g.apply(r["geometric"])
+    n = len(rk)
+    if len(k) % n:
+      raise ValueError(f"{len(k)} segments of draws against {n} of the real dance")
+    idx = np.arange(len(k)) % n
+    return (np.linalg.norm(k - rk[idx], axis=-1) / np.sqrt(k.shape[1]) +
+            np.linalg.norm(g - rg[idx], axis=-1) / np.sqrt(g.shape[1]))
+
 
 def kept_runs(keep: np.ndarray) -> list[tuple[int, int]]:
   """[(first, last)] of the runs of consecutive True segments."""
@@ -91,6 +107,9 @@ def main(argv=None) -> None:
   ap.add_argument("--keep", type=float, default=0.4, help="per style, the share of the draws' segments kept")
   ap.add_argument("--guidance", type=float, default=3.0, help="style guidance of the draws (the engine's default)")
   ap.add_argument("--seed", type=int, default=0)
+  ap.add_argument("--reward", choices=("style", "song"), default="style",
+                  help="style: distance to the nearest real training segment of the style; song: distance to "
+                       "the song's own real dance over the same song time (its real codes, decoded)")
   args = ap.parse_args(argv)
   if args.draws < 1:
     ap.error("--draws must be at least 1")
@@ -107,9 +126,12 @@ def main(argv=None) -> None:
     gu, gl = free_running_draws(model, t, args.draws, gen, args.guidance)
     dances = [decode_codes(vqs, gu[i], gl[i], t["id"], skel) for i in range(args.draws)]
     n_seg = len(features.segments(dances[0].positions))
-    s = scorer.scores(dances, t["style"]).reshape(args.draws, n_seg)
     real = decode_codes(vqs, np.asarray(t["upper"][1:]), np.asarray(t["lower"][1:]), t["id"], skel)
-    r = scorer.scores([real], t["style"])
+    if args.reward == "song":
+      s = scorer.scores_against(dances, real).reshape(args.draws, n_seg)
+    else:
+      s = scorer.scores(dances, t["style"]).reshape(args.draws, n_seg)
+    r = scorer.scores([real], t["style"])  # (the real codes by the style reward, for the report)
     songs.append({"t": t, "u": gu, "l": gl, "s": s, "real": r})
     print(f"{t['id']:<18} draws {s.mean():.3f} (best draw {s.mean(1).min():.3f})  real codes {r.mean():.3f}",
           flush=True)

@@ -83,3 +83,13 @@ def test_segments_near_the_styles_real_dancing_score_lower():
   assert np.all(near > 0) and np.all(frozen > near)
   # The style matters: the waltz's sway is far from the cha-cha's real dancing.
   assert np.all(scorer.scores([Dance("x", _swaying(0.2))], chacha) > near)
+
+
+def test_the_song_reward_compares_each_segment_with_the_real_dance_at_the_same_time():
+  ref = [Dance("tang_DANCE_W_1", _swaying(0.2)), Dance("tang_DANCE_C_1", _swaying(0.05, period_s=0.5))]
+  val = [Dance("tang_DANCE_W_2", _swaying(0.15)), Dance("tang_DANCE_C_2", _swaying(0.08, period_s=0.6))]
+  scorer = SegmentScorer(Evaluator(ref, val))
+  real = np.concatenate([_swaying(0.2, seconds=10), _swaying(0.05, seconds=10, period_s=0.5)])
+  same, swapped = real.copy(), np.concatenate([real[300:], real[:300]])
+  s = scorer.scores_against([Dance("a", same), Dance("b", swapped)], Dance("real", real))
+  assert s.shape == (4,) and np.allclose(s[:2], 0.0, atol=1e-9) and np.all(s[2:] > 0.1)
