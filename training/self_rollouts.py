@@ -133,8 +133,8 @@ def main(argv=None) -> None:
       s = scorer.scores(dances, t["style"]).reshape(args.draws, n_seg)
     r = scorer.scores([real], t["style"])  # (the real codes by the style reward, for the report)
     songs.append({"t": t, "u": gu, "l": gl, "s": s, "real": r})
-    print(f"{t['id']:<18} draws {s.mean():.3f} (best draw {s.mean(1).min():.3f})  real codes {r.mean():.3f}",
-          flush=True)
+    print(f"{t['id']:<18} draws {s.mean():.3f} (best draw {s.mean(1).min():.3f})  real codes (style reward) "
+          f"{r.mean():.3f}", flush=True)
   out, report = [], {}
   for style in sorted({x["t"]["style"] for x in songs}):
     mine = [x for x in songs if x["t"]["style"] == style]
@@ -151,7 +151,8 @@ def main(argv=None) -> None:
                     "draws_mean": float(np.mean([x["s"].mean() for x in mine])),
                     "real_codes_mean": float(np.mean([x["real"].mean() for x in mine]))}
     print(f"{name:<8} threshold {threshold:.3f}: {kept} of {report[name]['segments']} segments kept; "
-          f"mean score draws {report[name]['draws_mean']:.3f}, real codes {report[name]['real_codes_mean']:.3f}")
+          f"mean score draws {report[name]['draws_mean']:.3f}, real codes (style reward) "
+          f"{report[name]['real_codes_mean']:.3f}")
   torch.save(out, args.out)
   steps = sum(len(c["upper"]) for c in out)
   print(f"self_rollouts: {len(out)} clips, {steps} steps -> {args.out}")
