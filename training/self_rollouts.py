@@ -16,8 +16,8 @@ divided by the root of its dimension and the two summed; --reward song: the same
 real dance over the same song time (the continuations that, from the model's own history, land where the real
 dancer was). Per style, the segments scoring below the `keep` quantile of that style's draws
 are kept; runs of consecutive kept segments of a draw become clips in the token format of
-train_seq.build_tokens (the song's music and PRE over those steps, the draw's codes), with the id
-"self:<song>:<draw>:<first segment>". train.py --self-tokens adds them to the training clips.
+train_seq.build_tokens (the song's music and PRE over those steps, the draw's codes), marked "own_draw", with
+the id "self:<song>:<draw>:<first segment>". train.py --self-tokens adds them to the training clips.
 """
 from __future__ import annotations
 
@@ -51,28 +51,34 @@ class SegmentScorer:
     styles = np.array([style_of_dance(r["dance"]) for r in ev.ref_rows])
     self.ref = {int(s): (ev.ref_k[styles == s], ev.ref_g[styles == s]) for s in np.unique(styles)}
 
+  def features(self, dances) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised kinetic and geometric features of every 10-s segment of `dances`, in order."""
+    t = segment_table(dances, beats_of=lambda d: np.zeros(0))
+    return self.ev.norm_k.apply(t["kinetic"]), self.ev.norm_g.apply(t["geometric"])
+
+  @staticmethod
+  def distance(k, g, rk, rg) -> np.ndarray:
+    """Distance between segments (..., D) and reference segments (broadcast), each part divided by the
+    root of its dimension."""
+    return (np.linalg.norm(k - rk, axis=-1) / np.sqrt(k.shape[-1]) +
+            np.linalg.norm(g - rg, axis=-1) / np.sqrt(g.shape[-1]))
+
   def scores(self, dances, style: int) -> np.ndarray:
     """One score per 10-s segment of `dances` (in order), lower = nearer real dancing of the style."""
-    t = segment_table(dances, beats_of=lambda d: np.zeros(0))
-    k, g = self.ev.norm_k.apply(t["kinetic"]), self.ev.norm_g.apply(t["geometric"])
+    k, g = self.features(dances)
     rk, rg = self.ref[style]
-    dk = np.linalg.norm(k[:, None] - rk[None], axis=-1) / np.sqrt(k.shape[1])
-    dg = np.linalg.norm(g[:, None] - rg[None], axis=-1) / np.sqrt(g.shape[1])
-    return (dk + dg).min(1)
+    return self.distance(k[:, None], g[:, None], rk[None], rg[None]).min(1)
 
   def scores_against(self, dances, real) -> np.ndarray:
     """One score per 10-s segment of `dances` (in order): the distance to the segment of the song's real
     dance `real` (a Dance on the same timeline) over the same song time."""
-    t = segment_table(dances, beats_of=lambda d: np.zeros(0))
-    r = segment_table([real], beats_of=lambda d: np.zeros(0))
-    k, g = self.ev.norm_k.apply(t["kinetic"]), self.ev.norm_g.apply(t["geometric"])
-    rk, rg = self.ev.norm_k.apply(r["kinetic"]), self.ev.norm_g.apply(r["geometric"])
+    k, g = self.features(dances)
+    rk, rg = self.features([real])
     n = len(rk)
     if len(k) % n:
       raise ValueError(f"{len(k)} segments of draws against {n} of the real dance")
     idx = np.arange(len(k)) % n
-    return (np.linalg.norm(k - rk[idx], axis=-1) / np.sqrt(k.shape[1]) +
-            np.linalg.norm(g - rg[idx], axis=-1) / np.sqrt(g.shape[1]))
+    return self.distance(k, g, rk[idx], rg[idx])
 
 
 def kept_runs(keep: np.ndarray) -> list[tuple[int, int]]:
@@ -95,7 +101,7 @@ def clip_of_run(t: dict, upper: np.ndarray, lower: np.ndarray, first: int, last:
   lo = np.concatenate([[t["lower"][0]], lower])[a:b + 1].astype(np.int64)
   return {"id": f"self:{t['id']}:{draw}:{first}", "factor": t.get("factor", 1.0), "style": t["style"],
           "upper": u, "lower": lo, "music": np.asarray(t["music"][a:b + 1]), "pre": np.asarray(t["pre"][a:b + 1]),
-          "mirror": False}
+          "mirror": False, "own_draw": True}
 
 
 def main(argv=None) -> None:

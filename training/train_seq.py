@@ -92,7 +92,7 @@ def window_probs(toks, ok, steps: int, style_balance: float = 1.0, self_share: f
   shares (waltz ~58 % of the Tang training steps, tango ~4 %); 0 gives every style the same share; 0.5 is
   in between. Within a style the clips keep their relative weights. A song's versions (tempo factors,
   mirror images) share its weight: augmenting some songs more than others does not change their shares.
-  self_share: the model's own kept draws (clips with ids "self:...", training.self_rollouts) then get this
+  self_share: the model's own kept draws (clips marked "own_draw", training.self_rollouts) then get this
   share of the windows and the real clips the rest (None: by their lengths like any clip)."""
   lens = np.array([len(toks[j]["upper"]) for j in ok], np.float64) - steps
   versions = collections.Counter(toks[j].get("id") for j in ok)
@@ -106,7 +106,7 @@ def window_probs(toks, ok, steps: int, style_balance: float = 1.0, self_share: f
       probs[styles == st] *= share ** style_balance / share
     probs /= probs.sum()
   if self_share is not None:
-    own = np.array([str(toks[j].get("id", "")).startswith("self:") for j in ok])
+    own = np.array([bool(toks[j].get("own_draw", False)) for j in ok])
     if own.any() and (~own).any():
       probs[own] *= self_share / probs[own].sum()
       probs[~own] *= (1.0 - self_share) / probs[~own].sum()
@@ -333,7 +333,7 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
     extra = torch.load(self_tokens)
     if extra and len(extra[0]["music"][0]) != len(train_toks[0]["music"][0]):
       raise SystemExit(f"seq: {self_tokens} has music features of another width than this run's tokens")
-    train_toks = train_toks + extra
+    train_toks = train_toks + [dict(t, own_draw=True) for t in extra]  # (files written before the mark too)
     log(f"seq: {len(extra)} clips of the model's own kept draws from {self_tokens} "
         f"({sum(len(t['upper']) for t in extra)} steps), share of the windows {self_share}")
   torch.manual_seed(0)

@@ -22,7 +22,7 @@ def test_clip_of_run_lines_the_draw_up_with_the_songs_music():
   upper, lower = rng.integers(0, 16, n), rng.integers(0, 16, n)  # the draw: codes of token steps 1..n
   c = clip_of_run(t, upper, lower, 1, 2, draw=5)
   a = SEGMENT_STEPS
-  assert c["id"] == "self:tang_DANCE_W_1:5:1" and c["style"] == 3
+  assert c["id"] == "self:tang_DANCE_W_1:5:1" and c["style"] == 3 and c["own_draw"]
   assert len(c["upper"]) == len(c["music"]) == len(c["pre"]) == 2 * SEGMENT_STEPS + 1
   # Token step j of the clip is token step a + j of the song: its code is the draw's code of that step.
   assert c["upper"][0] == upper[a - 1] and np.array_equal(c["upper"][1:], upper[a:3 * SEGMENT_STEPS])
@@ -35,7 +35,7 @@ def test_clip_of_run_lines_the_draw_up_with_the_songs_music():
 
 def test_self_share_sets_the_own_draws_share_of_the_windows():
   toks = ([{"id": f"r{i}", "style": i % 2, "upper": np.zeros(100 + 20 * i)} for i in range(4)]
-          + [{"id": f"self:r{i}:0:0", "style": i % 2, "upper": np.zeros(76)} for i in range(3)])
+          + [{"id": f"self:r{i}:0:0", "style": i % 2, "upper": np.zeros(76), "own_draw": True} for i in range(3)])
   ok = np.arange(len(toks))
   for share in (0.2, 0.5, 0.8):
     p = window_probs(toks, ok, steps=16, style_balance=0.5, self_share=share)
@@ -53,7 +53,7 @@ def test_self_share_sets_the_own_draws_share_of_the_windows():
   for t in toks:
     n = len(t["upper"])
     clips.append(dict(t, factor=1.0, upper=rng.integers(0, 16, n), lower=rng.integers(0, 16, n),
-                      music=np.zeros((n, 20), np.float32) + (1.0 if t["id"].startswith("self:") else 0.0),
+                      music=np.zeros((n, 20), np.float32) + (1.0 if t.get("own_draw") else 0.0),
                       pre=np.zeros((n, 8), np.float32)))
   (music, *_), _ = make_batch(clips, cfg, np.random.default_rng(1), batch=200, steps=64, self_share=0.8)
   assert abs(float(music[:, 0, 0].mean()) - 0.8) < 0.08
