@@ -361,6 +361,9 @@ def main(argv=None) -> int:
   ap.add_argument("--n-head", type=int, default=2)
   ap.add_argument("--lookahead", type=int, default=0, help="0 anticipatory, 1 reactive")
   ap.add_argument("--code-mask", type=float, default=0.4, help="past-motion dropout rate")
+  ap.add_argument("--music-dropout", type=float, default=0.0,
+                  help="each training window's music stream replaced by the mean with this probability, PRE "
+                       "kept (both phases; trains the prediction music guidance contrasts with; off)")
   ap.add_argument("--own-inputs", type=float, default=0.0,
                   help="share of the sequence model's non-BOS input codes replaced by its own draws (parallel "
                        "scheduled sampling; the tempo-normalised phase only when pretraining; default 0)")
@@ -479,6 +482,8 @@ def main(argv=None) -> int:
     ap.error(f"--ema must be in [0, 1), got {args.ema}")
   if not 1 <= args.aux_steps <= 16 or args.aux_weight < 0:
     ap.error(f"--aux-steps must be in 1..16 and --aux-weight >= 0, got {args.aux_steps}, {args.aux_weight}")
+  if not 0.0 <= args.music_dropout < 1.0:
+    ap.error(f"--music-dropout must be in [0, 1), got {args.music_dropout}")
   if not 0.0 <= args.own_inputs <= 1.0:
     ap.error(f"--own-inputs must be in [0, 1], got {args.own_inputs}")
   if args.own_passes < 1:

@@ -223,6 +223,18 @@ def own_code_inputs(model, inputs, p: float, generator: torch.Generator | None =
   return music, pre, u, l, sw
 
 
+def drop_music(model, inputs, p: float, rng: np.random.Generator) -> tuple:
+  """`inputs` with each window's music stream replaced, with probability p, by the model's music mean (zero
+  after the model's normalisation); PRE, codes and style kept. Trains the prediction without the song's
+  music that music guidance contrasts with (`free_run --music-guidance`; docs/training.md, "Music
+  guidance")."""
+  music, pre, u, l, sw = inputs
+  drop = torch.from_numpy(rng.random(music.shape[0]) < p)
+  music = music.clone()
+  music[drop] = model.music_mean
+  return music, pre, u, l, sw
+
+
 def loss_of(model, inputs, targets) -> torch.Tensor:
   lu, ll = model(*inputs)
   return code_loss(lu, ll, targets)
@@ -410,6 +422,9 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
   carry = bool(getattr(args, "carry_state", False))
   own = float(getattr(args, "own_inputs", 0.0))
   own_passes = int(getattr(args, "own_passes", 1))
+  music_dropout = float(getattr(args, "music_dropout", 0.0))
+  if music_dropout > 0:
+    log(f"seq: music dropout {music_dropout:g} (a window's music replaced by the mean, PRE kept)")
   balance = float(getattr(args, "style_balance", 1.0))
   lanes = Lanes(train_toks, cfg, rng, args.batch, STEPS, balance) if carry else None
   carried = None
@@ -437,6 +452,8 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
       inputs, targets = make_batch(train_toks, cfg, rng, batch=args.batch, code_mask=args.code_mask,
                                    style_dropout=STYLE_DROPOUT,
                                    style_balance=balance, self_share=self_share if self_tokens else None)
+    if music_dropout > 0:  # (only then: a run without it draws exactly the batches it drew before)
+      inputs = drop_music(model, inputs, music_dropout, rng)
     if own > 0:
       inputs = own_code_inputs(model, inputs, own, state=carried, passes=own_passes)
     trace = {} if aux is not None else None

@@ -443,6 +443,24 @@ def test_free_run_feeds_the_models_own_draws_and_teacher_forcing_the_real_codes(
   fu, _ = free_running_draws(Habit(), t, 2, gen, history_guidance=-2.0, history_mask=0.0)
   np.testing.assert_array_equal(fu, np.tile(np.arange(1, 7), (2, 1)))
 
+  class Listener(Successor):  # reading the music mean (not the song's music) it predicts code 3
+    music_mean = torch.ones(4)
+
+    def step(self, music, pre, u, l, style_w, state):
+      if bool((music == self.music_mean).all()):
+        return peaked(torch.full_like(u, 2)), peaked(torch.full_like(l, 2)), (state or 0) + 1
+      return super().step(music, pre, u, l, style_w, state)
+
+  # m = 1: the mean-music lanes do not change the draws; m = 0: only they count (with style guidance on
+  # both lanes); m = -1 would favour them twice over: every draw is 3 as well.
+  for w in (1.0, 3.0):
+    fu, _ = free_running_draws(Listener(), t, 2, gen, guidance=w, music_guidance=1.0)
+    np.testing.assert_array_equal(fu, np.tile(np.arange(1, 7), (2, 1)))
+    for m in (0.0, -1.0):
+      fu, fl = free_running_draws(Listener(), t, 2, gen, guidance=w, music_guidance=m)
+      np.testing.assert_array_equal(fu, np.full((2, 6), 3))
+      np.testing.assert_array_equal(fl, np.full((2, 6), 3))
+
 
 def test_real_spread_draws_the_validations_composition_and_ranks_an_outlying_set_high():
   from training.eval import real_spread

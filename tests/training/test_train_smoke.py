@@ -272,6 +272,7 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
   for flag, bad in (("--own-seeds", "1,x"), ("--own-seeds", ""), ("--own-weight", "-1"), ("--own-weight", "lower=x"), ("--own-anchor", "-0.5"),
                     ("--own-iters", "-3"), ("--style-balance", "-0.1"), ("--style-balance", "1.5"),
                     ("--own-inputs", "-0.1"), ("--own-inputs", "1.5"), ("--own-passes", "0"),
+                    ("--music-dropout", "-0.1"), ("--music-dropout", "1"),
                     ("--own-passes", "3"),  # without --own-inputs it would do nothing
                     ("--self-share", "0"), ("--self-share", "1"), ("--self-tokens", str(tmp_path / "none.pt"))):
     with pytest.raises(SystemExit) as e:
@@ -311,3 +312,23 @@ def test_aux_heads_predict_the_codes_two_and_more_steps_ahead():
   assert float(aux.loss(y, targets)) < 1e-6
   aux.upper[1] = Ahead(2)  # the 3-steps-ahead head off by one: the loss sees it
   assert float(aux.loss(y, targets)) > 1.0
+
+
+def test_music_dropout_replaces_whole_windows_music_by_the_mean_and_keeps_the_rest():
+  from training.train_seq import drop_music
+  cfg = SeqConfig(feature_dim=5, pre_dim=8, d_model=16, n_heads=2, codebook_size=16, n_styles=2, style_dim=4,
+                  attn_window=8)
+  model = Danceba(cfg)
+  with torch.no_grad():
+    model.music_mean.copy_(torch.arange(cfg.music_dim, dtype=torch.float32))
+  inputs, _ = make_batch(_tokens(), cfg, np.random.default_rng(0), batch=400, steps=16)
+  out = drop_music(model, inputs, 0.3, np.random.default_rng(1))
+  music, dropped = inputs[0], out[0]
+  is_mean = (dropped == model.music_mean).all(-1).all(-1)
+  untouched = (dropped == music).all(-1).all(-1)
+  assert bool((is_mean | untouched).all()) and abs(float(is_mean.float().mean()) - 0.3) < 0.06
+  for a, b in zip(inputs[1:], out[1:]):  # PRE, codes and style as they were
+    assert torch.equal(a, b)
+  assert not torch.equal(music, dropped)
+  assert not bool((music == model.music_mean).all(-1).all(-1).any())  # the caller's batch is not changed
+
