@@ -1,7 +1,7 @@
 """Free-running moment matching: fine-tune the sequence model through its own free-running draws.
 
     OMP_WAIT_POLICY=PASSIVE /usr/bin/python3 -m training.free_run_tune --model models/default.dncw \
-        --tokens RUN/tokens_train_warp_....pt --out R/model.dncw [--iters 400] [--own-weight 0.5]
+        --tokens RUN/tokens_train_warp_....pt --out R/model.dncw [--iters 300] [--own-weight 3] [--per-song]
 
 The diagnosis (docs/training.md, "Free-running loses the energetic styles' energy"): given a real history
 the model continues a song nearly as its dancer did; reading its own draws it hops between the style's codes
@@ -10,7 +10,7 @@ inputs, self-training on kept draws) or its sampling. This one gives the model a
 free-running draws look like, decoded:
 
 - a rollout starts from a real prefix of a training clip (the state after `--prefix` teacher-forced steps;
-  a quarter of the rollouts from BOS at the song's start, the engine's condition) and runs `--steps` steps
+  a quarter of the style groups from BOS at the song's start, the engine's condition) and runs `--steps` steps
   on its own draws. Each draw is a straight-through Gumbel sample: the forward pass feeds the model and the
   decoders the sampled code's one-hot, exactly a free-running draw; the backward pass goes through its
   softmax, both into the step that drew it and into every later step that read it;
@@ -19,12 +19,15 @@ free-running draws look like, decoded:
   per joint, mean squared velocity and mean |acceleration|) are taken in log;
 - per style, the mean and the spread over the batch's rollouts of those statistics are matched to the same
   statistics of the style's real codes decoded on the same timeline (the decoders' own rendering of the
-  real dances, so the term asks for the real dances' motion as far as the codes can carry it, not more).
+  real dances, so the term asks for the real dances' motion as far as the codes can carry it, not more);
+  with `--per-song` all of a style group's rollouts come from one song and match that song's statistics.
 
 The term is added at `--own-weight` to the usual teacher-forced cross-entropy on real windows (style
 balance 0.5, past-motion dropout 0.4, style dropout as in training), so the model keeps predicting the real
 continuation while it is steered on its own. No guidance in the rollouts (the engine applies it on top).
-The output is the input file with the sequence model's tensors replaced (decoders, metadata unchanged).
+The output is the input file with the sequence model's tensors replaced (decoders unchanged; the metadata
+gains a `free_run_tune` entry with the settings). Defaults: the measured run `frt_b` (docs/training.md, "Free-running
+moment matching"; measured, not shipped).
 """
 from __future__ import annotations
 
@@ -58,24 +61,9 @@ def gumbel_one_hot(logits: torch.Tensor, generator: torch.Generator) -> torch.Te
   return hard - soft.detach() + soft
 
 
-def embed_soft(model, music, pre, u_oh, l_oh):
-  """model.embed with the code inputs given as (B, K+1) one-hot rows (a straight-through sample): the same
-  values as the lookup, with a gradient into the rows."""
-  xm = model.embed_music((music - model.music_mean) / model.music_std)
-  x = torch.stack([xm, u_oh @ model.embed_upper.weight, l_oh @ model.embed_lower.weight], dim=-2)
-  if model.cfg.use_pre:
-    x = x + model.pre(pre).unsqueeze(-2)
-  return x + model.embed_stream
-
-
 def step_soft(model, music, pre, u_oh, l_oh, style_w, state):
-  """Danceba.step with one-hot code inputs (embed_soft); the rest of the step is the model's own."""
-  orig = model.embed
-  model.embed = lambda m, p, u, l: embed_soft(model, m, p, u, l)
-  try:
-    return model.step(music, pre, u_oh, l_oh, style_w, state)
-  finally:
-    model.embed = orig
+  """Danceba.step with the code inputs as (B, K+1) one-hot rows (Danceba.embed takes them as they are)."""
+  return model.step(music, pre, u_oh, l_oh, style_w, state)
 
 
 class EnergyTarget:
@@ -205,16 +193,20 @@ def main(argv=None) -> None:
   ap.add_argument("--model", required=True)
   ap.add_argument("--tokens", required=True, help="a training run's tokens_train_warp_*.pt")
   ap.add_argument("--out", required=True)
-  ap.add_argument("--iters", type=int, default=400)
-  ap.add_argument("--lr", type=float, default=5e-5)
-  ap.add_argument("--own-weight", type=float, default=0.5)
-  ap.add_argument("--per-style", type=int, default=4)
-  ap.add_argument("--prefix", type=int, default=32)
-  ap.add_argument("--steps", type=int, default=40)
+  ap.add_argument("--iters", type=int, default=300)
+  ap.add_argument("--lr", type=float, default=1e-4)
+  ap.add_argument("--own-weight", type=float, default=3.0)
+  ap.add_argument("--per-style", type=int, default=4, help="rollouts per style and iteration")
+  ap.add_argument("--prefix", type=int, default=32, help="real teacher-forced steps before a rollout")
+  ap.add_argument("--steps", type=int, default=32, help="free-running steps of a rollout")
   ap.add_argument("--seed", type=int, default=0)
   ap.add_argument("--per-song", action="store_true",
                   help="match each rollout group to its song's real statistics, not the style's")
   args = ap.parse_args(argv)
+  if args.iters < 1 or args.per_style < 1 or args.prefix < 1 or args.steps < 2:
+    ap.error("--iters, --per-style and --prefix must be at least 1, --steps at least 2")
+  if not (args.lr > 0 and args.own_weight >= 0):
+    ap.error("--lr must be > 0 and --own-weight >= 0")
   torch.manual_seed(args.seed)
   rng = np.random.default_rng(args.seed)
   gen = torch.Generator().manual_seed(args.seed)

@@ -110,3 +110,14 @@ def test_per_song_target_is_the_songs_own_and_rollouts_of_one_song_reach_it():
   loss, _ = rollouts(model, vqs, toks, target, rng, torch.Generator().manual_seed(0), per_style=2, prefix=6,
                      steps=8, per_song=True)
   assert torch.isfinite(loss)
+
+
+def test_bad_settings_are_clear_errors(tmp_path):
+  import pytest
+  from training.free_run_tune import main
+  base = ["--model", TINY, "--tokens", str(tmp_path / "none.pt"), "--out", str(tmp_path / "o.dncw")]
+  for flag, bad in (("--iters", "0"), ("--per-style", "0"), ("--prefix", "0"), ("--steps", "1"),
+                    ("--lr", "0"), ("--own-weight", "-1")):
+    with pytest.raises(SystemExit) as e:
+      main(base + [flag, bad])
+    assert e.value.code == 2

@@ -55,9 +55,13 @@ class Danceba(nn.Module):
     return style_w @ self.style_table  # (B, d_s)
 
   def embed(self, music, pre, u, l):
-    """(.., 4F), (.., P), (..), (..) -> (.., 3, d)."""
+    """(.., 4F), (.., P), (..), (..) -> (.., 3, d). The codes u, l are indices, or (.., K+1) one-hot rows
+    (float, e.g. a straight-through sample: the same values as the lookup, with a gradient into the rows)."""
     xm = self.embed_music((music - self.music_mean) / self.music_std)
-    x = torch.stack([xm, self.embed_upper(u), self.embed_lower(l)], dim=-2)
+
+    def codes(table: nn.Embedding, c: torch.Tensor) -> torch.Tensor:
+      return c @ table.weight if c.is_floating_point() else table(c)
+    x = torch.stack([xm, codes(self.embed_upper, u), codes(self.embed_lower, l)], dim=-2)
     if self.cfg.use_pre:
       x = x + self.pre(pre).unsqueeze(-2)
     return x + self.embed_stream
