@@ -69,6 +69,10 @@ absl::StatusOr<LoadReport> RunLoad(const LoadOptions& o, std::shared_ptr<const A
       po.header.mutable_sampling()->set_temperature(1.0f);
       po.header.mutable_sampling()->set_guidance(o.guidance);
     }
+    if (o.music_guidance >= 0.0f) {
+      po.header.mutable_sampling()->set_temperature(1.0f);
+      po.header.mutable_sampling()->set_music_guidance(o.music_guidance);
+    }
     streams.push_back(std::make_unique<PerformStream>(
         stubs[static_cast<size_t>(i / o.streams_per_channel)].get(),
         std::make_unique<ClipSource>(clip, o.realtime, o.duration_s), po));

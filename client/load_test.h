@@ -35,6 +35,7 @@ struct LoadOptions {
   bool realtime = true;
   uint64_t seed = 0;
   float guidance = 0.0f;              // Sampling.guidance of every session (0 = the model's default)
+  float music_guidance = -1.0f;       // Sampling.music_guidance of every session (negative = the model's default)
   std::vector<std::pair<std::string, float>> style;  // every session's style mix (empty = "none")
 };
 

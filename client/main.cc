@@ -3,7 +3,7 @@
 //   dance-client --server HOST:P --audio FILE --out DANCE.json [--bvh DANCE.bvh] [--realtime] [--play]
 //   dance-client --server HOST:P --mic --mic-seconds 30 --out DANCE.json
 //   dance-client watch --server HOST:P --session ID [--out DANCE.json] [--frames N]
-//   dance-client load --server HOST:P --audio FILE --streams N --duration S [--style S] [--guidance W]
+//   dance-client load --server HOST:P --audio FILE --streams N --duration S [--style S] [--guidance W] [--music-guidance M]
 //   dance-client info --server HOST:P          (model info and live sessions)
 // Exit status: 0 on success, 1 on an RPC error (the status is printed), 2 on bad usage.
 #include <algorithm>
@@ -44,6 +44,8 @@ ABSL_FLAG(double, temperature, 1.0, "Sampling temperature (0 = greedy).");
 ABSL_FLAG(int, top_k, 0, "Top-k cut (0 = off).");
 ABSL_FLAG(double, top_p, 0.0, "Nucleus cut (1 = off; 0 = the model's default).");
 ABSL_FLAG(double, guidance, 0.0, "Style guidance weight (1 = off; 0 = the model's default). Also for load.");
+ABSL_FLAG(double, music_guidance, -1.0,
+          "Music guidance weight (1 = off; negative = the model's default; docs/model.md section 6). Also for load.");
 ABSL_FLAG(double, period_lock, -1.0, "Period lock weight (0 = off; negative = the model's default).");
 ABSL_FLAG(bool, raw_feet, false, "Foot lock off: legs and feet exactly as decoded (StreamHeader.raw_feet).");
 ABSL_FLAG(int, chunk_ms, 40, "Audio per message, ms.");
@@ -118,6 +120,9 @@ int Perform() {
   po.header.mutable_sampling()->set_top_k(absl::GetFlag(FLAGS_top_k));
   po.header.mutable_sampling()->set_top_p(static_cast<float>(absl::GetFlag(FLAGS_top_p)));
   po.header.mutable_sampling()->set_guidance(static_cast<float>(absl::GetFlag(FLAGS_guidance)));
+  if (absl::GetFlag(FLAGS_music_guidance) >= 0.0) {
+    po.header.mutable_sampling()->set_music_guidance(static_cast<float>(absl::GetFlag(FLAGS_music_guidance)));
+  }
   if (absl::GetFlag(FLAGS_period_lock) >= 0.0) {
     po.header.mutable_sampling()->set_period_lock(static_cast<float>(absl::GetFlag(FLAGS_period_lock)));
   }
@@ -242,6 +247,7 @@ int Load() {
   o.stagger_s = absl::GetFlag(FLAGS_stagger);
   o.seed = absl::GetFlag(FLAGS_seed);
   o.guidance = static_cast<float>(absl::GetFlag(FLAGS_guidance));
+  o.music_guidance = static_cast<float>(absl::GetFlag(FLAGS_music_guidance));
   dance::v1::StreamHeader styled;
   ParseStyle(absl::GetFlag(FLAGS_style), &styled);
   for (const auto& w : styled.style()) o.style.emplace_back(w.name(), w.weight());
@@ -268,7 +274,8 @@ int Info() {
   std::cout << "model " << info.model_id() << ", latency " << info.latency_ms() << " ms, sessions "
             << info.active_sessions() << "/" << info.max_sessions() << ", styles:";
   for (const auto& s : info.styles()) std::cout << " " << s;
-  std::cout << "\ndefaults: guidance " << info.default_guidance() << ", top_p " << info.default_top_p()
+  std::cout << "\ndefaults: guidance " << info.default_guidance() << ", music guidance "
+            << info.default_music_guidance() << ", top_p " << info.default_top_p()
             << ", period lock " << info.default_period_lock();
   // Styles whose period lock differs from the default (sorted: the proto map has no order).
   std::map<std::string, float> locks(info.style_period_lock().begin(), info.style_period_lock().end());

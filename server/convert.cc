@@ -50,6 +50,13 @@ absl::StatusOr<SamplingConfig> SamplingFromProto(const dance::v1::Sampling& s) {
     }
     c.period_lock = lock;
   }
+  if (s.has_music_guidance()) {
+    const float m = s.music_guidance();
+    if (!(m == -1.0f || (m >= 0.0f && m <= 100.0f))) {
+      return absl::InvalidArgumentError("sampling.music_guidance must be in [0, 100], or -1 for the model's default");
+    }
+    c.music_guidance = m;
+  }
   return c;
 }
 
@@ -135,7 +142,7 @@ absl::Status Number(const json& j, const char* key, T* out) {
 absl::Status SamplingJson(const json& j, dance::v1::Sampling* s, bool* any) {
   float t = 1.0f, p = 0.0f, g = 0.0f;  // top_p, guidance absent: 0, the model's default
   int k = 0;
-  for (const char* key : {"temperature", "top_k", "top_p", "guidance", "period_lock"}) {
+  for (const char* key : {"temperature", "top_k", "top_p", "guidance", "period_lock", "music_guidance"}) {
     if (j.contains(key)) *any = true;
   }
   absl::Status st;
@@ -151,6 +158,11 @@ absl::Status SamplingJson(const json& j, dance::v1::Sampling* s, bool* any) {
     float lock = 0.0f;
     st.Update(Number(j, "period_lock", &lock));
     s->set_period_lock(lock);
+  }
+  if (j.contains("music_guidance")) {  // absent: the model's default
+    float m = 1.0f;
+    st.Update(Number(j, "music_guidance", &m));
+    s->set_music_guidance(m);
   }
   return st;
 }
@@ -204,7 +216,8 @@ nlohmann::json ModelToJson(const ModelDescription& m) {
               {"joint_names", m.joint_names}, {"parents", m.parents},       {"rest_offsets", m.rest_offsets},
               {"styles", m.styles}, {"default_period_lock", m.default_period_lock},
               {"style_period_lock", m.style_period_lock},
-              {"default_guidance", m.default_guidance}, {"default_top_p", m.default_top_p}};
+              {"default_guidance", m.default_guidance}, {"default_top_p", m.default_top_p},
+              {"default_music_guidance", m.default_music_guidance}};
 }
 
 nlohmann::json SummaryToJson(const dance::v1::SessionSummary& s) {

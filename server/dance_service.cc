@@ -287,6 +287,7 @@ grpc::ServerUnaryReactor* DanceServiceImpl::GetModelInfo(grpc::CallbackServerCon
   response->set_default_period_lock(m.default_period_lock);
   for (const auto& [style, lock] : m.style_period_lock) (*response->mutable_style_period_lock())[style] = lock;
   response->set_default_guidance(m.default_guidance);
+  response->set_default_music_guidance(m.default_music_guidance);
   response->set_default_top_p(m.default_top_p);
   reactor->Finish(grpc::Status::OK);
   return reactor;

@@ -18,6 +18,7 @@ engine::SamplingOptions ToEngine(const SamplingConfig& s) {
   o.top_p = s.top_p;
   o.guidance = s.guidance;
   o.period_lock = s.period_lock.value_or(-1.0f);  // unset in a StreamHeader: the model's default
+  o.music_guidance = s.music_guidance.value_or(-1.0f);
   return o;
 }
 
@@ -61,6 +62,7 @@ class EngineSessionStream final : public EngineStream {
     // style-following default back (engine: negative = Model::StylePeriodLock of the top style).
     const engine::SamplingOptions& now = session_->sampling();
     if (!sampling.period_lock.has_value()) o.period_lock = now.period_lock;
+    if (!sampling.music_guidance.has_value()) o.music_guidance = now.music_guidance;
     if (o.guidance < 0.0f) o.guidance = now.guidance;
     if (o.top_p < 0.0f) o.top_p = now.top_p;
     o.foot_lock = now.foot_lock;  // a stream setting (StreamHeader.raw_feet), not the Control's
@@ -89,6 +91,7 @@ class EngineBackendImpl final : public EngineBackend {
       desc_.style_period_lock[desc_.styles[i]] = model_->StylePeriodLock(static_cast<int>(i));
     }
     desc_.default_guidance = model_->default_guidance();
+    desc_.default_music_guidance = model_->default_music_guidance();
     desc_.default_top_p = model_->default_top_p();
   }
 

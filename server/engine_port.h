@@ -40,6 +40,9 @@ struct SamplingConfig {
   // 0 = off, negative = the model's default for the top style (follows style changes); unset = the model's
   // default in a StreamHeader, the setting in effect in a Control.
   std::optional<float> period_lock;
+  // 1 = off, negative = the model's default; unset = the model's default in a StreamHeader, the setting in
+  // effect in a Control.
+  std::optional<float> music_guidance;
 };
 
 using StyleMix = std::vector<std::pair<std::string, float>>;  // (style name, weight >= 0)
@@ -67,6 +70,7 @@ struct ModelDescription {
   float default_period_lock = 0.0f;  // Sampling.period_lock when absent (0 = off) and the style is "none"
   std::map<std::string, float> style_period_lock;  // per style: Sampling.period_lock when absent
   float default_guidance = 1.0f;     // Sampling.guidance when 0 (1 = off)
+  float default_music_guidance = 1.0f;  // Sampling.music_guidance when absent (1 = off)
   float default_top_p = 1.0f;        // Sampling.top_p when 0 (1 = no cut)
 };
 

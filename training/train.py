@@ -117,9 +117,9 @@ def seq_digest(run: pathlib.Path) -> str | None:
 def owndec_dance_settings(args, run: pathlib.Path) -> dict:
   """What the owndec stage's engine dances depend on besides the sequence model: the exported file's
   time_base and sampling metadata (period lock, style tempi, guidance) and the seeds."""
-  from training.train_seq import time_base_meta
+  from training.train_seq import sampling_meta, time_base_meta
   return {"time_base": time_base_meta(args, run, lambda *_: None),
-          "sampling": {"guidance": float(getattr(args, "guidance", 1.0))},
+          "sampling": sampling_meta(args),
           "seeds": [int(s) for s in args.own_seeds]}
 
 
@@ -420,6 +420,9 @@ def main(argv=None) -> int:
   ap.add_argument("--guidance", type=float, default=3.0,
                   help="the engine's default style guidance weight written into the model (sampling.guidance; "
                        "docs/model.md section 6); 1 = off")
+  ap.add_argument("--music-guidance", type=float, default=1.0,
+                  help="the engine's default music guidance weight written into the model "
+                       "(sampling.music_guidance; docs/model.md section 6; needs --music-dropout); 1 = off")
   ap.add_argument("--tempo-factors", default=",".join(str(f) for f in td.TEMPO_FACTORS),
                   help="tempo augmentation of the fixed-rate phase: music and motion stretched together")
   ap.add_argument("--warp-tempo-factors", default="1",
@@ -467,6 +470,8 @@ def main(argv=None) -> int:
     ap.error(f"--period-lock-periods must be two integers in 1..4 (upper,lower), got '{raw_periods}'")
   if not 0.0 <= args.guidance <= 100.0:
     ap.error(f"--guidance must be in [0, 100], got {args.guidance}")
+  if not 0.0 <= args.music_guidance <= 100.0:
+    ap.error(f"--music-guidance must be in [0, 100], got {args.music_guidance}")
   try:
     args.own_seeds = [int(x) for x in args.own_seeds.split(",")]
   except ValueError:

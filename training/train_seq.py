@@ -223,6 +223,16 @@ def own_code_inputs(model, inputs, p: float, generator: torch.Generator | None =
   return music, pre, u, l, sw
 
 
+def sampling_meta(args) -> dict:
+  """The exported file's sampling defaults (metadata "sampling"; docs/model.md section 6): the style guidance
+  weight, and the music guidance weight when it is not 1 (off)."""
+  meta = {"guidance": float(getattr(args, "guidance", 1.0))}
+  music = float(getattr(args, "music_guidance", 1.0))
+  if music != 1.0:
+    meta["music_guidance"] = music
+  return meta
+
+
 def drop_music(model, inputs, p: float, rng: np.random.Generator) -> tuple:
   """`inputs` with each window's music stream replaced, with probability p, by the model's music mean (zero
   after the model's normalisation); PRE, codes and style kept. Trains the prediction without the song's
@@ -581,7 +591,7 @@ def stage_export(args, vqs, run: pathlib.Path, log) -> None:
   extra = {"model_id": model_id, "features": FEATURES_META,
            "skeleton": skeleton_meta(), "styles": td.ALL_STYLES[:model.cfg.n_styles], "training": {"run": str(run)},
            "time_base": time_base_meta(args, run, log)}
-  extra["sampling"] = {"guidance": float(getattr(args, "guidance", 1.0))}
+  extra["sampling"] = sampling_meta(args)
   for name in ("vq_report.json", "vqdec_report.json", "eval_report.json"):
     if (run / name).is_file():
       extra["training"][name.removesuffix(".json")] = json.loads((run / name).read_text())

@@ -50,7 +50,8 @@ std::shared_ptr<const Model> BenchModel() {
 // Sessions with enough audio queued for `steps` steps.
 std::vector<std::unique_ptr<Session>> MakeSessions(int n, double seconds, const std::string& style = "",
                                                   float period_lock = kModelDefaultPeriodLock,
-                                                  float guidance = kModelDefaultGuidance) {
+                                                  float guidance = kModelDefaultGuidance,
+                                                  float music_guidance = kModelDefaultMusicGuidance) {
   const std::vector<float> audio = testing::TestAudio(seconds);
   std::vector<std::unique_ptr<Session>> out;
   for (int i = 0; i < n; ++i) {
@@ -59,6 +60,7 @@ std::vector<std::unique_ptr<Session>> MakeSessions(int n, double seconds, const 
     if (!style.empty() && BenchModel()->StyleIndex(style).ok()) opt.style = {{style, 1.0f}};
     opt.sampling.period_lock = period_lock;
     opt.sampling.guidance = guidance;
+    opt.sampling.music_guidance = music_guidance;
     out.push_back(*Session::Create(BenchModel(), opt));
     (void)out.back()->PushAudio(audio);
   }
@@ -104,6 +106,14 @@ void BM_StepWaltz(benchmark::State& state) {
                                    state.range(1) == 0 ? 0.0f : kBenchLock));
 }
 BENCHMARK(BM_StepWaltz)->Args({1, 0})->Args({1, 1})->Args({64, 0})->Args({64, 1})->Unit(benchmark::kMicrosecond);
+
+// BM_StepWaltz/N/1 with music guidance 0.5 on top of the model's style guidance: four model passes per step
+// (style and "none", each on the song's music and on the music mean; docs/model.md section 6).
+void BM_StepMusicGuidance(benchmark::State& state) {
+  StepSessions(state, MakeSessions(static_cast<int>(state.range(0)), 70.0, "waltz", kBenchLock,
+                                   kModelDefaultGuidance, 0.5f));
+}
+BENCHMARK(BM_StepMusicGuidance)->Arg(1)->Arg(64)->Unit(benchmark::kMicrosecond);
 
 void BM_ModelOnly(benchmark::State& state) {
   const int n = static_cast<int>(state.range(0));
@@ -205,6 +215,11 @@ void PrintMemory() {
   std::unique_ptr<Session> g = *Session::Create(BenchModel(), guided);
   std::fprintf(stderr, "memory per session: %.1f KB without guidance (%.1f KB with)\n", s[0]->StateBytes() / 1024.0,
                g->StateBytes() / 1024.0);
+  // Waltz with style guidance 2 and music guidance 0.5, after one step (the music-mean lanes are allocated
+  // at their first step).
+  std::vector<std::unique_ptr<Session>> m = MakeSessions(1, 1.0, "waltz", kModelDefaultPeriodLock, 2.0f, 0.5f);
+  (void)m[0]->Step();
+  std::fprintf(stderr, "memory per session with style and music guidance: %.1f KB\n", m[0]->StateBytes() / 1024.0);
 }
 
 }  // namespace

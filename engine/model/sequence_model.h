@@ -61,6 +61,10 @@ class SequenceModel {
   // receives the named intermediate activations of training/model/danceba.py (each (d, 3L)).
   void Step(absl::Span<const LaneInput> lanes, Workspace& ws, Trace* trace = nullptr) const;
 
+  // The training data's mean raw music token (4F): what a lane reads in place of the song's music for music
+  // guidance (the model learned it with --music-dropout; SamplingOptions::music_guidance).
+  const Eigen::VectorXf& music_mean() const { return music_mean_; }
+
   int num_style_blocks() const { return c_.n_base + c_.n_head * c_.n_pmmm_sets() + 1; }
 
  private:

@@ -21,6 +21,10 @@ absl::Status ValidateSamplingOptions(const SamplingOptions& o) {
     return absl::InvalidArgumentError(
         absl::StrCat("sampling: guidance must be <= 100 (negative = the model's default), got ", o.guidance));
   }
+  if (!(o.music_guidance <= 100.0f) || !std::isfinite(o.music_guidance)) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "sampling: music_guidance must be <= 100 (negative = the model's default), got ", o.music_guidance));
+  }
   if (!(o.period_lock <= 100.0f) || !std::isfinite(o.period_lock)) {
     return absl::InvalidArgumentError(
         absl::StrCat("sampling: period_lock must be <= 100 (negative = the model's default), got ", o.period_lock));

@@ -31,6 +31,7 @@ namespace dance::engine {
 inline constexpr float kModelDefaultPeriodLock = -1.0f;
 inline constexpr float kModelDefaultGuidance = -1.0f;
 inline constexpr float kModelDefaultTopP = -1.0f;
+inline constexpr float kModelDefaultMusicGuidance = -1.0f;
 
 struct SamplingOptions {
   float temperature = 1.0f;  // >= 0; 0 = greedy
@@ -41,6 +42,11 @@ struct SamplingOptions {
   // Classifier-free style guidance weight w (<= 100); 1 = conditional logits only, negative = the model's
   // default (Model::default_guidance). The caller combines the logits (ApplyGuidance).
   float guidance = kModelDefaultGuidance;
+  // Music guidance weight m (<= 100; sessions, docs/model.md section 6): l_nm + m (l - l_nm), l the
+  // (style-guided) logits and l_nm the same model in its own lanes reading the music mean instead of the
+  // song's music stream (PRE and the clock kept); m < 1 weakens what the song's music stream adds, 1 = off,
+  // negative = the model's default (Model::default_music_guidance). SampleCode ignores it.
+  float music_guidance = kModelDefaultMusicGuidance;
   // Period lock (sessions of a tempo-normalised model with dance periods; docs/model.md section 6): weight
   // (<= 100) of the logit bias toward the codes of one dance period ago; 0 = off, negative = the model's
   // default (Model::default_period_lock). SampleCode ignores it.

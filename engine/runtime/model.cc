@@ -233,6 +233,7 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
       return absl::OkStatus();
     };
     DANCE_RETURN_IF_ERROR(read("guidance", 0.0, true, 100.0, "0..100", &m->default_guidance_));
+    DANCE_RETURN_IF_ERROR(read("music_guidance", 0.0, true, 100.0, "0..100", &m->default_music_guidance_));
     DANCE_RETURN_IF_ERROR(read("top_p", 0.0, false, 1.0, "(0, 1]", &m->default_top_p_));
   }
   return std::shared_ptr<const Model>(std::move(m));

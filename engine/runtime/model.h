@@ -107,6 +107,9 @@ class Model {
   // The style guidance weight sessions use when SamplingOptions::guidance is negative (metadata
   // "sampling": {"guidance": W}, 0..100); 1 = off (models without it).
   float default_guidance() const { return default_guidance_; }
+  // The music guidance weight sessions use when SamplingOptions::music_guidance is negative (metadata
+  // "sampling": {"music_guidance": M}, 0..100); 1 = off (models without it).
+  float default_music_guidance() const { return default_music_guidance_; }
   // The nucleus cut sessions use when SamplingOptions::top_p is negative (metadata "sampling":
   // {"top_p": P}, (0, 1]); 1 = no cut (models without it).
   float default_top_p() const { return default_top_p_; }
@@ -148,6 +151,7 @@ class Model {
   std::array<int, 2> period_lock_periods_ = {1, 1};  // upper, lower
   float period_lock_sharpness_ = kDefaultPeriodLockSharpness;
   float default_guidance_ = 1.0f;
+  float default_music_guidance_ = 1.0f;
   float default_top_p_ = 1.0f;
   std::array<RowMatrix, 2> unit_codebook_;    // upper, lower
   std::vector<float> lower_code_height_;      // (K)

@@ -49,6 +49,8 @@ absl::StatusOr<std::unique_ptr<Session>> Session::Create(std::shared_ptr<const M
   s->lower_state_ = s->model_->lower_decoder().NewState();
   s->guided_u_.resize(k);
   s->guided_l_.resize(k);
+  s->music_u_.resize(k);
+  s->music_l_.resize(k);
   s->warp_ = s->NewWarpState();
   DANCE_RETURN_IF_ERROR(s->ApplyStyle(options.style));
   return s;
@@ -81,14 +83,12 @@ absl::Status Session::ApplyStyle(const std::vector<std::pair<std::string, float>
   }
   if (!(total > 0.0)) return absl::InvalidArgumentError("style weights sum to 0");
   for (auto& r : rows) r.second = static_cast<float>(r.second / total);
-  const bool none = StyleIsNone(style);
-  if (style_is_none_ && !none && guidance() != 1.0f) {
-    // Guidance was skipped while the style was "none" (the conditional lane was the unconditional one):
-    // the unconditional lane continues from the conditional lane's state, which is exactly its history.
-    uncond_ = cond_;
-  }
-  style_is_none_ = none;
-  model_->sequence().SetStyle(model_->sequence().StyleVector(rows), &cond_);
+  // (Guidance is skipped while the style is "none": the conditional lane is then the unconditional one,
+  // and PrepareLanes starts the unconditional lane from it when a style comes.)
+  style_is_none_ = StyleIsNone(style);
+  const Eigen::VectorXf sv = model_->sequence().StyleVector(rows);
+  model_->sequence().SetStyle(sv, &cond_);
+  if (!music_cond_.keys.empty()) model_->sequence().SetStyle(sv, &music_cond_);
   style_ = style;
   // The metre, dance period and period lock weight follow the style with the largest weight (TopStyleRow).
   const int top = TopStyleRow(style);
@@ -147,15 +147,36 @@ absl::Status Session::SetStyle(const std::vector<std::pair<std::string, float>>&
 
 absl::Status Session::SetSampling(const SamplingOptions& sampling) {
   DANCE_RETURN_IF_ERROR(ValidateSamplingOptions(sampling));
-  if (EffectiveGuidance(sampling) != 1.0f && guidance() == 1.0f) {
-    // Guidance switched on mid-stream: the unconditional lane has not followed; start it from the
-    // conditional lane's history (the closest state it can have) with style "none".
-    Eigen::MatrixXf none_bias = uncond_.style_bias;
-    uncond_ = cond_;
-    uncond_.style_bias = none_bias;
-  }
-  sampling_ = sampling;
+  sampling_ = sampling;  // lanes switched on start at the next step (PrepareLanes)
   return absl::OkStatus();
+}
+
+namespace {
+
+// `to` continues from `from`'s history (step, KV caches, Mamba states) with the style factors `style_bias`.
+void StartLane(const SequenceState& from, const Eigen::MatrixXf& style_bias, SequenceState* to) {
+  Eigen::MatrixXf bias = style_bias;  // may be to's own
+  *to = from;
+  to->style_bias = std::move(bias);
+}
+
+}  // namespace
+
+void Session::PrepareLanes() {
+  const bool uncond = uses_guidance();
+  const bool music = uses_music_guidance();
+  const bool music_uncond = uncond && music;
+  // uncond_ always holds style "none"'s factors (it never takes a style).
+  if (uncond && !uncond_live_) StartLane(cond_, uncond_.style_bias, &uncond_);
+  // The "none" lane on the music mean continues the one that read the music mean if there was one (style
+  // guidance switched on), else the "none" lane on the music (music guidance switched on).
+  if (music_uncond && !music_uncond_live_) {
+    StartLane(music_cond_live_ ? music_cond_ : uncond_, uncond_.style_bias, &music_uncond_);
+  }
+  if (music && !music_cond_live_) StartLane(cond_, cond_.style_bias, &music_cond_);
+  uncond_live_ = uncond;
+  music_cond_live_ = music;
+  music_uncond_live_ = music_uncond;
 }
 
 absl::Status Session::PushAudio(absl::Span<const float> interleaved) {
@@ -270,18 +291,32 @@ void Session::StepInputs(const float** music, const float** pre) {
   *pre = pending_pre_.data() + (first + fps - 1) * kPreDims;
 }
 
-void Session::SampleCodes(const float* logits_u, const float* logits_l, const float* uncond_u,
-                          const float* uncond_l) {
+void Session::SampleCodes(const LaneLogits& cond, const LaneLogits& uncond, const LaneLogits& music_cond,
+                          const LaneLogits& music_uncond) {
   const SeqConfig& c = model_->config();
   const int k = c.codebook_size;
   heading_history_.push_back(pose_.yaw);  // the heading after every frame of the previous steps
   if (heading_history_.size() > kMaxCodeHistory + 1) heading_history_.pop_front();
-  absl::Span<const float> lu(logits_u, k), ll(logits_l, k);
-  if (uncond_u != nullptr) {
-    std::copy(logits_u, logits_u + k, guided_u_.begin());
-    std::copy(logits_l, logits_l + k, guided_l_.begin());
-    ApplyGuidance(absl::MakeConstSpan(uncond_u, k), guidance(), absl::MakeSpan(guided_u_));
-    ApplyGuidance(absl::MakeConstSpan(uncond_l, k), guidance(), absl::MakeSpan(guided_l_));
+  absl::Span<const float> lu(cond.u, k), ll(cond.l, k);
+  const bool combined = uncond.u != nullptr || music_cond.u != nullptr;
+  if (combined) {
+    std::copy(cond.u, cond.u + k, guided_u_.begin());
+    std::copy(cond.l, cond.l + k, guided_l_.begin());
+    if (uncond.u != nullptr) {
+      ApplyGuidance(absl::MakeConstSpan(uncond.u, k), guidance(), absl::MakeSpan(guided_u_));
+      ApplyGuidance(absl::MakeConstSpan(uncond.l, k), guidance(), absl::MakeSpan(guided_l_));
+    }
+    if (music_cond.u != nullptr) {
+      // l_nm, style-guided like l, then l_nm + m (l - l_nm).
+      std::copy(music_cond.u, music_cond.u + k, music_u_.begin());
+      std::copy(music_cond.l, music_cond.l + k, music_l_.begin());
+      if (music_uncond.u != nullptr) {
+        ApplyGuidance(absl::MakeConstSpan(music_uncond.u, k), guidance(), absl::MakeSpan(music_u_));
+        ApplyGuidance(absl::MakeConstSpan(music_uncond.l, k), guidance(), absl::MakeSpan(music_l_));
+      }
+      ApplyGuidance(music_u_, music_guidance(), absl::MakeSpan(guided_u_));
+      ApplyGuidance(music_l_, music_guidance(), absl::MakeSpan(guided_l_));
+    }
     lu = guided_u_;
     ll = guided_l_;
   }
@@ -289,9 +324,9 @@ void Session::SampleCodes(const float* logits_u, const float* logits_l, const fl
   const bool lock_u = period_lock() > 0.0f && period_steps_ > 0.0 && code_history_.size() >= lock_lag(0);
   const bool lock_l = period_lock() > 0.0f && period_steps_ > 0.0 && code_history_.size() >= lock_lag(1);
   if (lock_u || lock_l) {
-    if (uncond_u == nullptr) {
-      std::copy(logits_u, logits_u + k, guided_u_.begin());
-      std::copy(logits_l, logits_l + k, guided_l_.begin());
+    if (!combined) {
+      std::copy(cond.u, cond.u + k, guided_u_.begin());
+      std::copy(cond.l, cond.l + k, guided_l_.begin());
     }
     if (lock_u && PeriodMoves(0)) ApplyPeriodLock(0, absl::MakeSpan(guided_u_));
     if (lock_l && PeriodMoves(1) && !PeriodTurned()) ApplyPeriodLock(1, absl::MakeSpan(guided_l_));
@@ -486,6 +521,11 @@ absl::StatusOr<SessionSnapshot> Session::Snapshot() const {
   s.ended = ended_;
   s.cond = cond_;
   s.uncond = uncond_;
+  s.music_cond = music_cond_;
+  s.music_uncond = music_uncond_;
+  s.uncond_live = uncond_live_;
+  s.music_cond_live = music_cond_live_;
+  s.music_uncond_live = music_uncond_live_;
   s.upper_code = upper_code_;
   s.lower_code = lower_code_;
   s.upper_decoder = upper_state_;
@@ -515,6 +555,12 @@ absl::Status Session::Restore(const SessionSnapshot& s) {
       s.lower_decoder.history.size() != lower_state_.history.size()) {
     return absl::InvalidArgumentError("session restore: snapshot is from a different model");
   }
+  for (const SequenceState* lane : {&s.uncond, &s.music_cond, &s.music_uncond}) {
+    if (!lane->keys.empty() && (lane->keys.size() != fresh.keys.size() || lane->conv.size() != fresh.conv.size() ||
+                                lane->keys[0].size() != fresh.keys[0].size())) {
+      return absl::InvalidArgumentError("session restore: snapshot is from a different model");
+    }
+  }
   const int k = model_->config().codebook_size;
   for (const auto& [up, low] : s.code_history) {
     if (up < 0 || up >= k || low < 0 || low >= k || s.code_history.size() > kMaxCodeHistory) {
@@ -538,6 +584,11 @@ absl::Status Session::Restore(const SessionSnapshot& s) {
   ended_ = s.ended;
   cond_ = s.cond;
   uncond_ = s.uncond;
+  music_cond_ = s.music_cond;
+  music_uncond_ = s.music_uncond;
+  uncond_live_ = s.uncond_live;
+  music_cond_live_ = s.music_cond_live && !music_cond_.keys.empty();
+  music_uncond_live_ = s.music_uncond_live && !music_uncond_.keys.empty();
   upper_code_ = s.upper_code;
   lower_code_ = s.lower_code;
   upper_state_ = s.upper_decoder;
@@ -573,6 +624,9 @@ void Session::Reset() {
   const SequenceModel& seq = model_->sequence();
   cond_ = seq.NewState();
   uncond_ = seq.NewState();
+  music_cond_ = SequenceState();
+  music_uncond_ = SequenceState();
+  uncond_live_ = music_cond_live_ = music_uncond_live_ = false;
   style_is_none_ = true;  // both fresh lanes have style "none"
   ApplyStyle(options_.style).IgnoreError();  // validated by Create
   upper_code_ = lower_code_ = model_->config().codebook_size;
@@ -591,6 +645,8 @@ void Session::Reset() {
 int64_t Session::StateBytes() const {
   int64_t n = static_cast<int64_t>(sizeof(*this)) + cond_.Bytes() + upper_state_.Bytes() + lower_state_.Bytes();
   if (uses_guidance()) n += uncond_.Bytes();
+  if (!music_cond_.keys.empty()) n += music_cond_.Bytes();
+  if (!music_uncond_.keys.empty()) n += music_uncond_.Bytes();
   n += static_cast<int64_t>(sizeof(audio::AudioFrontEnd) + sizeof(audio::FeatureExtractorState));
   n += static_cast<int64_t>((pending_features_.capacity() + pending_pre_.capacity()) * sizeof(float));
   n += static_cast<int64_t>(code_history_.size() * sizeof(code_history_[0]) +
@@ -640,6 +696,7 @@ absl::Status StepBatch(absl::Span<Session* const> sessions) {
         first_lane.push_back(-1);
         continue;
       }
+      s->PrepareLanes();
       LaneInput in;
       s->StepInputs(&in.music, &in.pre);
       in.upper_code = s->upper_code_;
@@ -647,9 +704,18 @@ absl::Status StepBatch(absl::Span<Session* const> sessions) {
       in.state = &s->cond_;
       first_lane.push_back(static_cast<int>(lanes.size()));
       lanes.push_back(in);
-      if (s->uses_guidance()) {
+      if (s->uncond_live_) {
         in.state = &s->uncond_;
         lanes.push_back(in);
+      }
+      if (s->music_cond_live_) {
+        in.music = model->sequence().music_mean().data();
+        in.state = &s->music_cond_;
+        lanes.push_back(in);
+        if (s->music_uncond_live_) {
+          in.state = &s->music_uncond_;
+          lanes.push_back(in);
+        }
       }
     }
     model->sequence().Step(lanes, workspace);
@@ -659,13 +725,21 @@ absl::Status StepBatch(absl::Span<Session* const> sessions) {
       const int lane = first_lane[slot++];
       if (lane < 0) continue;
       Session* s = sessions[i];
-      const float* uu = nullptr;
-      const float* ul = nullptr;
-      if (s->uses_guidance()) {
-        uu = workspace.logits_u.col(lane + 1).data();
-        ul = workspace.logits_l.col(lane + 1).data();
-      }
-      s->SampleCodes(workspace.logits_u.col(lane).data(), workspace.logits_l.col(lane).data(), uu, ul);
+      // The session's lanes in PrepareLanes' order: cond, [uncond], [music cond, [music uncond]].
+      int next = lane;
+      auto take = [&](bool live) {
+        Session::LaneLogits g;
+        if (!live) return g;
+        g.u = workspace.logits_u.col(next).data();
+        g.l = workspace.logits_l.col(next).data();
+        ++next;
+        return g;
+      };
+      const Session::LaneLogits cond = take(true);
+      const Session::LaneLogits uncond = take(s->uncond_live_);
+      const Session::LaneLogits music_cond = take(s->music_cond_live_);
+      const Session::LaneLogits music_uncond = take(s->music_uncond_live_);
+      s->SampleCodes(cond, uncond, music_cond, music_uncond);
       group.push_back(s);
     }
     // Both VQ decoders over the whole group (one GEMM per conv), then per-session reconstruction.

@@ -112,6 +112,9 @@ struct SessionSnapshot {
   bool ended = false;
   SequenceState cond;
   SequenceState uncond;
+  SequenceState music_cond;
+  SequenceState music_uncond;
+  bool uncond_live = false, music_cond_live = false, music_uncond_live = false;
   int upper_code = 0, lower_code = 0;
   VqDecoderState upper_decoder, lower_decoder;
   PoseState pose;
@@ -172,6 +175,10 @@ class Session {
   const SamplingOptions& sampling() const { return sampling_; }
   // The style guidance weight in effect (SamplingOptions::guidance, or the model's default if negative).
   float guidance() const { return EffectiveGuidance(sampling_); }
+  // The music guidance weight in effect (SamplingOptions::music_guidance, or the model's default if negative).
+  float music_guidance() const {
+    return sampling_.music_guidance < 0.0f ? model_->default_music_guidance() : sampling_.music_guidance;
+  }
   // The nucleus cut in effect (SamplingOptions::top_p, or the model's default if negative).
   float top_p() const { return sampling_.top_p < 0.0f ? model_->default_top_p() : sampling_.top_p; }
   // The (upper, lower) codes of the last step (the BOS code K before the first).
@@ -193,6 +200,12 @@ class Session {
   // Guidance needs the unconditional lane only when the style is not "none" (with style "none" both lanes
   // are the same computation and lu + w (lc - lu) = lc).
   bool uses_guidance() const { return guidance() != 1.0f && !style_is_none_; }
+  // Music guidance needs the lanes reading the music mean (the style one, and the "none" one if guidance
+  // is on too).
+  bool uses_music_guidance() const { return music_guidance() != 1.0f; }
+  // Before a step: starts each lane this step needs that did not step last time from the history closest
+  // to it (its missed steps cannot be replayed), with its own style; then records which lanes step.
+  void PrepareLanes();
   // The row of the largest-weight style of a (validated) style mix, a style named twice counting with its
   // summed weight, the first of equals ("none" for an empty mix); ApplyStyle's choice for the metre, dance
   // period and period lock.
@@ -201,9 +214,16 @@ class Session {
   bool StyleIsNone(const std::vector<std::pair<std::string, float>>& style) const;
   // Pointers to this step's music token (4F) and PRE (P), valid until the next PushAudio.
   void StepInputs(const float** music, const float** pre);
-  // After the model ran: sample this step's codes from the lane logits (guidance and the period lock
-  // applied if on).
-  void SampleCodes(const float* logits_u, const float* logits_l, const float* uncond_u, const float* uncond_l);
+  // One lane's logits of a step (upper, lower; K each); null when the lane did not step.
+  struct LaneLogits {
+    const float* u = nullptr;
+    const float* l = nullptr;
+  };
+  // After the model ran: sample this step's codes from the lane logits (style guidance, music guidance and
+  // the period lock applied if on). The lanes: conditional (style, music), unconditional (none, music),
+  // music-mean conditional and music-mean unconditional.
+  void SampleCodes(const LaneLogits& cond, const LaneLogits& uncond, const LaneLogits& music_cond,
+                   const LaneLogits& music_uncond);
   // After the VQ decoders ran: reconstructs and queues this step's frames ((45, 4) and (31, 4) features).
   void EmitFrames(const Eigen::Ref<const Eigen::MatrixXf>& upper, const Eigen::Ref<const Eigen::MatrixXf>& lower);
   // Tempo-normalised models: emits every real frame whose warped poses are decoded.
@@ -246,6 +266,12 @@ class Session {
   std::vector<float> music_token_;  // (4F) scratch
   SequenceState cond_;
   SequenceState uncond_;          // style "none", used when guidance != 1
+  // Music guidance's lanes, reading the music mean: the style's, and "none"'s when guidance is on too.
+  // Empty until first needed (most sessions never use them).
+  SequenceState music_cond_;
+  SequenceState music_uncond_;
+  // Whether each lane stepped at the last step (PrepareLanes).
+  bool uncond_live_ = false, music_cond_live_ = false, music_uncond_live_ = false;
   int upper_code_ = 0, lower_code_ = 0;
   VqDecoderState upper_state_, lower_state_;
   PoseReconstructor reconstructor_;
@@ -263,6 +289,7 @@ class Session {
   bool crouch_guard_on_ = false;  // the load passed kCrouchGuardOn and has not decayed below kCrouchGuardOff
   SamplerScratch sampler_;
   std::vector<float> guided_u_, guided_l_;  // (K) scratch
+  std::vector<float> music_u_, music_l_;    // (K) scratch of music guidance
   Eigen::VectorXf lock_sim_;                // (K) scratch of the period lock
   std::vector<uint8_t> lock_seen_;          // (K) scratch of PeriodMoves
   std::vector<PoseFrame> output_;

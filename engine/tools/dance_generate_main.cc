@@ -1,7 +1,7 @@
 // dance-generate: runs the streaming Session over an audio file (no server) and writes the dance.
 //
 //   dance-generate --audio FILE --out DANCE.json [--model M (default models/default.dncw)] [--seed S] [--style NAME[:W][,NAME:W...]]
-//                  [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--period-lock B] [--chunk-samples N]
+//                  [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--music-guidance M] [--period-lock B] [--chunk-samples N]
 //                  [--crouch-guard 0|1] [--foot-lock 0|1] [--bvh DANCE.bvh] [--quiet]
 //
 // The audio is pushed in chunks of N input frames (default 4096; the dance does not depend on N), stepping
@@ -10,7 +10,9 @@
 // --period-lock B: the period lock's weight (0 = off; default: the model's for the top style,
 // time_base.style_period_lock or period_lock); the dance file records the weight in effect. --crouch-guard 0 turns the crouch guard off (default on; for
 // measuring it, docs/model.md section 6). --foot-lock 0 turns the foot lock off (default on; docs/model.md
-// section 7): the dance as decoded, planted feet not held.
+// section 7): the dance as decoded, planted feet not held. --music-guidance M: l_nm + M (l - l_nm), l_nm
+// the model reading the music mean instead of the song's music stream (1 = off; default: the model's,
+// sampling.music_guidance; docs/model.md section 6).
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -43,7 +45,7 @@ struct Flags {
 
 constexpr char kUsage[] =
     "usage: dance-generate --audio FILE --out DANCE.json [--model M] [--seed S] [--style NAME[:W],...]\n"
-    "                      [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--period-lock B]\n"
+    "                      [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--music-guidance M] [--period-lock B]\n"
     "                      [--chunk-samples N] [--crouch-guard 0|1] [--foot-lock 0|1]\n"
     "                      [--bvh DANCE.bvh] [--quiet]\n";
 
@@ -78,6 +80,8 @@ absl::Status ParseFlags(int argc, char** argv, Flags* f) {
       ok = absl::SimpleAtof(v, &f->sampling.top_p);
     } else if (arg == "--guidance") {
       ok = absl::SimpleAtof(v, &f->sampling.guidance);
+    } else if (arg == "--music-guidance") {
+      ok = absl::SimpleAtof(v, &f->sampling.music_guidance);
     } else if (arg == "--period-lock") {
       ok = absl::SimpleAtof(v, &f->sampling.period_lock);
     } else if (arg == "--crouch-guard") {
@@ -169,6 +173,7 @@ absl::Status Run(Flags flags) {
                 {"top_k", flags.sampling.top_k},
                 {"top_p", s.top_p()},
                 {"guidance", s.guidance()},
+                {"music_guidance", s.music_guidance()},
                 {"period_lock", s.period_lock()},
                 {"crouch_guard", flags.sampling.crouch_guard},
                 {"foot_lock", flags.sampling.foot_lock},

@@ -90,6 +90,7 @@ TEST(EngineBackend, ControlKeepsTheGuidanceTopPAndLockItLeavesUnset) {
   config.seed = 4;
   config.sampling.guidance = 2.5f;
   config.sampling.top_p = 0.8f;
+  config.sampling.music_guidance = 0.5f;  // an unset music_guidance in a Control keeps it too
   const std::vector<float> audio = TestSignal(6.0, 24000);
   auto run = [&](const SamplingConfig* control) {
     return RunInHalves(**backend, config, audio, [&](EngineStream& stream) {
@@ -103,6 +104,8 @@ TEST(EngineBackend, ControlKeepsTheGuidanceTopPAndLockItLeavesUnset) {
   guidance_off.guidance = 1.0f;
   SamplingConfig no_cut = keep;
   no_cut.top_p = 1.0f;
+  SamplingConfig music_off = keep;
+  music_off.music_guidance = 1.0f;
   const std::vector<FrameData> base = run(nullptr), kept = run(&keep);
   ASSERT_EQ(base.size(), kept.size());
   ASSERT_GT(base.size(), 100u);
@@ -111,7 +114,7 @@ TEST(EngineBackend, ControlKeepsTheGuidanceTopPAndLockItLeavesUnset) {
     ASSERT_EQ(base[i].lower_code, kept[i].lower_code) << "frame " << i;
   }
   // Setting them does change the continuation (so the comparison above could fail).
-  for (const SamplingConfig* changed : {&guidance_off, &no_cut}) {
+  for (const SamplingConfig* changed : {&guidance_off, &no_cut, &music_off}) {
     const std::vector<FrameData> other = run(changed);
     ASSERT_EQ(other.size(), base.size());
     int differ = 0;

@@ -64,6 +64,16 @@ TEST(Convert, ValidHeaderIsAccepted) {
   EXPECT_EQ(ValidateHeader(h, Model(), {})->config.sampling.guidance, 3.0f);
   h.mutable_sampling()->set_top_p(0.9f);
   EXPECT_EQ(ValidateHeader(h, Model(), {})->config.sampling.top_p, 0.9f);
+  // Music guidance: absent = the model's default (unset); 0 is a weight (the music mean alone); -1 asks
+  // for the default (negative for the engine).
+  EXPECT_FALSE(v->config.sampling.music_guidance.has_value());
+  h.mutable_sampling()->set_music_guidance(0.0f);
+  EXPECT_EQ(ValidateHeader(h, Model(), {})->config.sampling.music_guidance, 0.0f);
+  h.mutable_sampling()->set_music_guidance(0.5f);
+  EXPECT_EQ(ValidateHeader(h, Model(), {})->config.sampling.music_guidance, 0.5f);
+  h.mutable_sampling()->set_music_guidance(-1.0f);
+  EXPECT_LT(*ValidateHeader(h, Model(), {})->config.sampling.music_guidance, 0.0f);
+  h.mutable_sampling()->clear_music_guidance();
   // The foot lock is on unless the header asks for raw feet.
   EXPECT_TRUE(v->config.foot_lock);
   h.set_raw_feet(true);
@@ -102,6 +112,11 @@ TEST(Convert, BadHeadersNameTheField) {
   check(h, "period_lock");
   h.mutable_sampling()->set_period_lock(101.0f);
   check(h, "period_lock");
+  h = GoodHeader();
+  h.mutable_sampling()->set_music_guidance(-0.5f);
+  check(h, "music_guidance");
+  h.mutable_sampling()->set_music_guidance(100.5f);
+  check(h, "music_guidance");
 }
 
 TEST(Convert, ChunksMustBeWholeFramesWithinTheLimit) {
@@ -129,6 +144,12 @@ TEST(Convert, JsonStartAndControl) {
   ASSERT_TRUE(h.ok());
   EXPECT_EQ(h->sampling().guidance(), 1.0f);
   EXPECT_FLOAT_EQ(h->sampling().top_p(), 0.9f);
+  EXPECT_FALSE(h->sampling().has_music_guidance());  // absent: the model's default
+  h = HeaderFromJson(nlohmann::json::parse(R"({"type":"start","sample_rate":48000,"music_guidance":0.5})"));
+  ASSERT_TRUE(h.ok());
+  ASSERT_TRUE(h->sampling().has_music_guidance());
+  EXPECT_EQ(h->sampling().music_guidance(), 0.5f);
+  EXPECT_FALSE(HeaderFromJson(nlohmann::json::parse(R"({"sample_rate":48000,"music_guidance":"less"})")).ok());
   h = HeaderFromJson(nlohmann::json::parse(R"({"type":"start","sample_rate":48000,"period_lock":0})"));
   ASSERT_TRUE(h.ok());
   ASSERT_TRUE(h->sampling().has_period_lock());
@@ -145,12 +166,14 @@ TEST(Convert, JsonStartAndControl) {
   ModelDescription m = Model();
   m.default_guidance = 3.0f;
   m.default_top_p = 0.9f;
+  m.default_music_guidance = 0.5f;
   m.style_period_lock = {{"waltz", 0.0f}, {"tango", 8.0f}};
   const nlohmann::json mj = ModelToJson(m);
   EXPECT_EQ(mj["default_guidance"].get<float>(), 3.0f);
   EXPECT_EQ(mj["style_period_lock"]["waltz"].get<float>(), 0.0f);
   EXPECT_EQ(mj["style_period_lock"]["tango"].get<float>(), 8.0f);
   EXPECT_FLOAT_EQ(mj["default_top_p"].get<float>(), 0.9f);
+  EXPECT_EQ(mj["default_music_guidance"].get<float>(), 0.5f);
 }
 
 TEST(Convert, FrameJsonHasTheDocumentedFields) {

@@ -213,7 +213,7 @@ def test_own_decoder_is_redone_when_its_settings_change(tmp_path):
   (tmp_path / "owndec_report.json").write_text(json.dumps(report))
   assert train.owndec_current(tmp_path, args) is not None
   assert train.owndec_current(tmp_path) is not None  # without args: the sequence model alone
-  for name, value in (("guidance", 2.0), ("period_lock", 4.0), ("own_seeds", [10]),
+  for name, value in (("guidance", 2.0), ("music_guidance", 0.5), ("period_lock", 4.0), ("own_seeds", [10]),
                       ("own_weight", {"upper": 0.3, "lower": 0.0}), ("own_weight", {"upper": 1.0, "lower": 0.5})):
     changed = argparse.Namespace(**dict(vars(args), **{name: value}))
     assert train.owndec_current(tmp_path, changed) is None, name

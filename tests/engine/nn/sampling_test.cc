@@ -139,6 +139,11 @@ TEST(Sampling, ValidationNamesTheBadField) {
   EXPECT_TRUE(ValidateSamplingOptions({.top_p = kModelDefaultTopP}).ok());
   EXPECT_FALSE(ValidateSamplingOptions({.top_p = std::nanf("")}).ok());
   EXPECT_FALSE(ValidateSamplingOptions({.guidance = std::nanf("")}).ok());
+  EXPECT_TRUE(ValidateSamplingOptions({.music_guidance = kModelDefaultMusicGuidance}).ok());
+  EXPECT_TRUE(ValidateSamplingOptions({.music_guidance = 0.0f}).ok());
+  EXPECT_FALSE(ValidateSamplingOptions({.music_guidance = 100.5f}).ok());
+  EXPECT_FALSE(ValidateSamplingOptions({.music_guidance = std::nanf("")}).ok());
+  EXPECT_NE(ValidateSamplingOptions({.music_guidance = 101.0f}).message().find("music_guidance"), std::string::npos);
   EXPECT_NE(ValidateSamplingOptions({.temperature = -1.0f}).message().find("temperature"), std::string::npos);
 }
 

@@ -184,11 +184,12 @@ TEST(Session, StepBatchMatchesSteppingAlone) {
   const std::vector<float> audio = TestAudio(2.5);
   std::vector<std::vector<PoseFrame>> alone;
   std::vector<std::unique_ptr<Session>> batch;
-  for (int i = 0; i < 5; ++i) {
+  for (int i = 0; i < 7; ++i) {
     SessionOptions opt = Opts(i);
-    if (i == 1) opt.style = {{"waltz", 1.0f}};
-    if (i == 2) opt.sampling.guidance = 2.0f;
+    if (i == 1 || i == 5) opt.style = {{"waltz", 1.0f}};
+    if (i == 2 || i == 5) opt.sampling.guidance = 2.0f;
     if (i == 3) opt.sampling.temperature = 0.0f;
+    if (i == 5 || i == 6) opt.sampling.music_guidance = 0.5f;  // four lanes; two
     auto a = MakeSession(model, opt);
     alone.push_back(RunStream(*a, audio, {audio.size()}));
     batch.push_back(MakeSession(model, opt));
@@ -198,7 +199,7 @@ TEST(Session, StepBatchMatchesSteppingAlone) {
   std::vector<Session*> ptrs;
   for (auto& s : batch) ptrs.push_back(s.get());
   while (ptrs[0]->StepsReady() > 0) ASSERT_TRUE(StepBatch(ptrs).ok());
-  for (int i = 0; i < 5; ++i) {
+  for (int i = 0; i < 7; ++i) {
     std::vector<PoseFrame> got;
     batch[i]->PopFrames(&got);
     ExpectSameFrames(alone[i], got, 1e-4f);
@@ -301,6 +302,163 @@ TEST(Session, GuidanceSnapshotAndToggleMidStream) {
   ASSERT_TRUE(s->Restore(*snap).ok());
   ExpectSameFrames(first, RunStream(*s, rest, {4321}));
   EXPECT_GT(s->StateBytes(), 0);
+}
+
+// The tiny model with its music embedding's weights zeroed: its music stream adds only the bias, whatever
+// the music, exactly what the tiny model adds when it reads its music mean (normalised to 0).
+std::shared_ptr<const Model> LoadDeafTinyModel(const testing::TinyModelOptions& o) {
+  WeightsWriter w = testing::TinyModelWriter(o);
+  w.Remove("seq.embed.music.weight");
+  w.Add("seq.embed.music.weight", {o.d_model, 4 * audio::kNumFeatures},
+        std::vector<float>(static_cast<size_t>(o.d_model) * 4 * audio::kNumFeatures, 0.0f));
+  const std::string path = ::testing::TempDir() + "/deaf_tiny.dncw";
+  EXPECT_TRUE(w.WriteFile(path).ok());
+  absl::StatusOr<std::shared_ptr<const Model>> m = LoadModel(path);
+  EXPECT_TRUE(m.ok()) << m.status();
+  return *m;
+}
+
+TEST(Session, MusicGuidanceZeroDancesFromTheMusicMeanAlone) {
+  // Music guidance m: l_nm + m (l - l_nm), l_nm the lanes reading the music mean. At m = 0 the dance is
+  // l_nm's: exactly the dance of the same model whose music stream is deaf (zero weights: it adds only the
+  // bias, as the music mean does). A deaf model has l = l_nm, so any m dances as m = 1 there.
+  testing::TinyModelOptions o;
+  auto model = LoadTinyModel(o);
+  auto deaf = LoadDeafTinyModel(o);
+  const std::vector<float> audio = TestAudio(3.0);
+  for (const bool styled : {false, true}) {  // style "none": two lanes; waltz with guidance 2: four
+    auto run = [&](std::shared_ptr<const Model> m, float music_guidance) {
+      SessionOptions opt = Opts(11);
+      if (styled) {
+        opt.style = {{"waltz", 1.0f}};
+        opt.sampling.guidance = 2.0f;
+      }
+      opt.sampling.music_guidance = music_guidance;
+      auto s = MakeSession(std::move(m), opt);
+      EXPECT_EQ(s->music_guidance(), music_guidance);
+      return RunStream(*s, audio, {audio.size()});
+    };
+    const std::vector<PoseFrame> heard = run(model, 1.0f), mean_only = run(model, 0.0f);
+    ExpectSameFrames(mean_only, run(deaf, 1.0f), 0.0f);
+    ExpectSameFrames(run(deaf, 0.5f), run(deaf, 1.0f), 0.0f);
+    EXPECT_GT(CodesDiffer(heard, mean_only, 0) + CodesDiffer(heard, mean_only, 1), 0) << styled;
+    EXPECT_GT(CodesDiffer(heard, run(model, 0.5f), 0), 0) << styled;
+  }
+}
+
+TEST(Session, MusicGuidanceDefaultsToTheModelsAndIsRefusedOutOfRange) {
+  testing::TinyModelOptions o;
+  auto plain = LoadTinyModel(o);
+  o.music_guidance = 0.5;
+  auto guided = LoadTinyModel(o);
+  EXPECT_EQ(plain->default_music_guidance(), 1.0f);
+  EXPECT_EQ(guided->default_music_guidance(), 0.5f);
+  const std::vector<float> audio = TestAudio(2.5);
+  auto run = [&](std::shared_ptr<const Model> m, float music_guidance) {
+    SessionOptions opt = Opts(5);
+    opt.sampling.music_guidance = music_guidance;
+    auto s = MakeSession(std::move(m), opt);
+    return std::make_pair(s->music_guidance(), RunStream(*s, audio, {audio.size()}));
+  };
+  const auto [m_default, by_default] = run(guided, kModelDefaultMusicGuidance);
+  EXPECT_EQ(m_default, 0.5f);
+  ExpectSameFrames(by_default, run(plain, 0.5f).second, 0.0f);
+  const auto [m_off, off] = run(guided, 1.0f);  // explicit 1 turns it off
+  EXPECT_EQ(m_off, 1.0f);
+  ExpectSameFrames(off, run(plain, kModelDefaultMusicGuidance).second, 0.0f);
+  EXPECT_GT(CodesDiffer(off, by_default, 0), 0);
+  // Bad metadata is refused with the key named; a bad option too.
+  WeightsWriter w = testing::TinyModelWriter(o);
+  w.metadata()["sampling"]["music_guidance"] = -0.5;
+  const std::string path = ::testing::TempDir() + "/bad_music_guidance.dncw";
+  ASSERT_TRUE(w.WriteFile(path).ok());
+  absl::StatusOr<std::shared_ptr<const Model>> bad = LoadModel(path);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.status().message().find("sampling.music_guidance"), std::string::npos);
+  SessionOptions opt;
+  opt.sampling.music_guidance = 101.0f;
+  EXPECT_FALSE(Session::Create(plain, opt).ok());
+  auto s = MakeSession(plain);
+  EXPECT_FALSE(s->SetSampling(opt.sampling).ok());
+}
+
+TEST(Session, MusicGuidanceSwitchesMidStreamAndSnapshotsExactly) {
+  auto model = LoadTinyModel();
+  const std::vector<float> audio = TestAudio(4.0);
+  const size_t quarter = audio.size() / 4;
+  SessionOptions opt = Opts(8);
+  opt.style = {{"waltz", 1.0f}};
+  opt.sampling.guidance = 2.0f;
+  opt.sampling.music_guidance = 1.0f;
+  auto s = MakeSession(model, opt);
+  auto plain = MakeSession(model, opt);  // never switched
+  ASSERT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data(), quarter)).ok());
+  DrainSteps(*s);
+  std::vector<PoseFrame> head;  // the frames before the switch
+  s->PopFrames(&head);
+  ASSERT_FALSE(head.empty());
+  const int64_t bytes_off = s->StateBytes();
+  SamplingOptions on = opt.sampling;
+  on.music_guidance = 0.3f;
+  ASSERT_TRUE(s->SetSampling(on).ok());  // the music-mean lanes start from the history of the music lanes
+  ASSERT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data() + quarter, quarter)).ok());
+  DrainSteps(*s);
+  EXPECT_GT(s->StateBytes(), bytes_off);  // two more lanes
+  absl::StatusOr<SessionSnapshot> snap = s->Snapshot();
+  ASSERT_TRUE(snap.ok());
+  std::vector<float> rest(audio.begin() + 2 * quarter, audio.end());
+  // Off, then on again (the lanes restart from the music lanes' history), then a style change.
+  auto continue_from_snapshot = [&](Session& session, size_t chunk) {
+    const size_t half = rest.size() / 2;
+    SamplingOptions off = on;
+    off.music_guidance = 1.0f;
+    EXPECT_TRUE(session.SetSampling(off).ok());
+    size_t pos = 0;
+    while (pos < half) {
+      const size_t n = std::min(chunk, half - pos);
+      EXPECT_TRUE(session.PushAudio(absl::MakeConstSpan(rest.data() + pos, n)).ok());
+      pos += n;
+      DrainSteps(session);
+    }
+    EXPECT_TRUE(session.SetSampling(on).ok());
+    EXPECT_TRUE(session.SetStyle({{"tango", 1.0f}}).ok());
+    std::vector<float> tail(rest.begin() + half, rest.end());
+    return RunStream(session, tail, {chunk});  // pops every frame since the snapshot's
+  };
+  std::vector<PoseFrame> first = continue_from_snapshot(*s, 999);
+  ASSERT_TRUE(s->Restore(*snap).ok());
+  EXPECT_EQ(s->music_guidance(), 0.3f);
+  ExpectSameFrames(first, continue_from_snapshot(*s, 4321), 0.0f);
+  // The frames before the switch are the unswitched session's; after it the codes change.
+  const std::vector<PoseFrame> unswitched = RunStream(*plain, audio, {audio.size()});
+  ASSERT_GT(unswitched.size(), head.size() + first.size() / 2);
+  ExpectSameFrames(head, std::vector<PoseFrame>(unswitched.begin(), unswitched.begin() + head.size()), 0.0f);
+  EXPECT_GT(CodesDiffer(first, std::vector<PoseFrame>(unswitched.begin() + head.size(), unswitched.end()), 0), 0);
+}
+
+TEST(Session, MusicGuidanceLanesSkipStyleGuidanceForStyleNoneAndResumeExactly) {
+  // Style "none" with guidance on steps the music lanes only (cond and music-mean cond). A style arriving
+  // then starts the "none" lanes from them: the same as turning guidance on at that moment.
+  testing::TinyModelOptions o;
+  o.guidance = 3.0;
+  auto model = LoadTinyModel(o);
+  const std::vector<float> audio = TestAudio(3.0);
+  auto switched = [&](bool guidance_from_start) {
+    SessionOptions opt = Opts(9);
+    opt.sampling.guidance = guidance_from_start ? kModelDefaultGuidance : 1.0f;
+    opt.sampling.music_guidance = 0.5f;
+    auto s = MakeSession(model, opt);
+    const size_t part = audio.size() / 2;
+    EXPECT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data(), part)).ok());
+    DrainSteps(*s);
+    EXPECT_TRUE(s->SetStyle({{"waltz", 1.0f}}).ok());
+    SamplingOptions on = opt.sampling;
+    on.guidance = kModelDefaultGuidance;
+    EXPECT_TRUE(s->SetSampling(on).ok());
+    std::vector<float> rest(audio.begin() + part, audio.end());
+    return RunStream(*s, rest, {rest.size()});
+  };
+  ExpectSameFrames(switched(true), switched(false), 0.0f);
 }
 
 TEST(Session, StepBatchRefusesDuplicatesAndUnreadySessions) {

@@ -46,6 +46,7 @@ struct TinyModelOptions {
   int lower_lock_periods = 0;  // != 0: time_base.period_lock_periods.lower
   double guidance = -1.0;     // >= 0: sampling.guidance (the sessions' default style guidance)
   double top_p = -1.0;        // > 0: sampling.top_p (the sessions' default nucleus cut)
+  double music_guidance = -1.0;  // >= 0: sampling.music_guidance (the sessions' default music guidance)
   double yaw_rate_mean = 0.0; // != 0: the lower decoder's mean yaw rate (radians per frame, channel 29)
   double height_mean = 0.0;   // != 0: the lower decoder's mean pelvis height (metres, channel 30; its std 1)
 };
