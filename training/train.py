@@ -271,6 +271,21 @@ def pretrain_seq(args, cfg, vqs, factors, run: pathlib.Path, vq_run: pathlib.Pat
   return out
 
 
+def parse_ranges(text: str) -> list[tuple[int, int]]:
+  """'0:52,53:54' -> [(0, 52), (53, 54)]: per-frame music feature column ranges [begin, end)."""
+  from training.features.extract import FEATURE_DIMS as FEATURE_DIM
+  out = []
+  for part in text.split(","):
+    try:
+      b, e = (int(x) for x in part.split(":"))
+    except ValueError:
+      raise argparse.ArgumentTypeError(f"bad range '{part}' (want BEGIN:END)") from None
+    if not 0 <= b < e <= FEATURE_DIM:
+      raise argparse.ArgumentTypeError(f"range {b}:{e} outside 0:{FEATURE_DIM} or empty")
+    out.append((b, e))
+  return out
+
+
 def parse_style_weights(text: str) -> dict[str, float]:
   """'waltz=0,tango=4' -> {"waltz": 0.0, "tango": 4.0}: known style names (train_data.ALL_STYLES), each weight
   in 0..100 (the engine's range for time_base.style_period_lock); '' -> {}."""
@@ -364,6 +379,10 @@ def main(argv=None) -> int:
   ap.add_argument("--music-dropout", type=float, default=0.0,
                   help="each training window's music stream replaced by the mean with this probability, PRE "
                        "kept (both phases; trains the prediction music guidance contrasts with; off)")
+  ap.add_argument("--music-dropout-features", type=parse_ranges, default=None,
+                  help="B:E[,B:E...]: music dropout replaces only these per-frame feature columns [B, E) by the "
+                       "mean, the rest stays the song's (e.g. 0:52, the MFCCs, their deltas and the chroma); "
+                       "written into the model as sampling.music_guidance_features (default: every column)")
   ap.add_argument("--own-inputs", type=float, default=0.0,
                   help="share of the sequence model's non-BOS input codes replaced by its own draws (parallel "
                        "scheduled sampling; the tempo-normalised phase only when pretraining; default 0)")

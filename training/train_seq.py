@@ -230,18 +230,37 @@ def sampling_meta(args) -> dict:
   music = float(getattr(args, "music_guidance", 1.0))
   if music != 1.0:
     meta["music_guidance"] = music
+  ranges = getattr(args, "music_dropout_features", None)
+  if ranges and float(getattr(args, "music_dropout", 0.0)) > 0:
+    meta["music_guidance_features"] = [[int(b), int(e)] for b, e in ranges]
   return meta
 
 
-def drop_music(model, inputs, p: float, rng: np.random.Generator) -> tuple:
+def feature_mask(ranges, feature_dim: int, frames: int) -> torch.Tensor | None:
+  """(frames x feature_dim) booleans, frame-major like a music token: True at the per-frame feature columns
+  in `ranges` ([(begin, end), ...]); None for no ranges (every column)."""
+  if not ranges:
+    return None
+  cols = torch.zeros(feature_dim, dtype=torch.bool)
+  for b, e in ranges:
+    cols[b:e] = True
+  return cols.repeat(frames)
+
+
+def drop_music(model, inputs, p: float, rng: np.random.Generator, ranges=None) -> tuple:
   """`inputs` with each window's music stream replaced, with probability p, by the model's music mean (zero
-  after the model's normalisation); PRE, codes and style kept. Trains the prediction without the song's
-  music that music guidance contrasts with (`free_run --music-guidance`; docs/training.md, "Music
-  guidance")."""
+  after the model's normalisation); PRE, codes and style kept. With `ranges` ([(begin, end), ...] per-frame
+  feature columns) only those columns are replaced, the others keep the song's. Trains the prediction
+  without the song's music that music guidance contrasts with (the engine's SamplingOptions::music_guidance,
+  its metadata sampling.music_guidance_features = ranges; docs/training.md, "Music guidance")."""
   music, pre, u, l, sw = inputs
   drop = torch.from_numpy(rng.random(music.shape[0]) < p)
   music = music.clone()
-  music[drop] = model.music_mean
+  mask = feature_mask(ranges, model.cfg.feature_dim, model.cfg.frames_per_step)
+  if mask is None:
+    music[drop] = model.music_mean
+  else:
+    music[drop] = torch.where(mask, model.music_mean, music[drop])
   return music, pre, u, l, sw
 
 
@@ -433,8 +452,10 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
   own = float(getattr(args, "own_inputs", 0.0))
   own_passes = int(getattr(args, "own_passes", 1))
   music_dropout = float(getattr(args, "music_dropout", 0.0))
+  music_ranges = getattr(args, "music_dropout_features", None)
   if music_dropout > 0:
-    log(f"seq: music dropout {music_dropout:g} (a window's music replaced by the mean, PRE kept)")
+    log(f"seq: music dropout {music_dropout:g} (a window's music replaced by the mean, PRE kept"
+        + (f"; feature columns {music_ranges} only)" if music_ranges else ")"))
   balance = float(getattr(args, "style_balance", 1.0))
   lanes = Lanes(train_toks, cfg, rng, args.batch, STEPS, balance) if carry else None
   carried = None
@@ -463,7 +484,7 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
                                    style_dropout=STYLE_DROPOUT,
                                    style_balance=balance, self_share=self_share if self_tokens else None)
     if music_dropout > 0:  # (only then: a run without it draws exactly the batches it drew before)
-      inputs = drop_music(model, inputs, music_dropout, rng)
+      inputs = drop_music(model, inputs, music_dropout, rng, music_ranges)
     if own > 0:
       inputs = own_code_inputs(model, inputs, own, state=carried, passes=own_passes)
     trace = {} if aux is not None else None

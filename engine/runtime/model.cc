@@ -234,6 +234,21 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
     };
     DANCE_RETURN_IF_ERROR(read("guidance", 0.0, true, 100.0, "0..100", &m->default_guidance_));
     DANCE_RETURN_IF_ERROR(read("music_guidance", 0.0, true, 100.0, "0..100", &m->default_music_guidance_));
+    if (sm.contains("music_guidance_features")) {
+      const nlohmann::json& ranges = sm["music_guidance_features"];
+      const std::string bad = absl::StrCat("weights metadata: sampling.music_guidance_features must be a non-empty "
+                                           "list of [begin, end] feature columns with 0 <= begin < end <= ",
+                                           audio::kNumFeatures);
+      if (!ranges.is_array() || ranges.empty()) return absl::InvalidArgumentError(bad);
+      for (const nlohmann::json& r : ranges) {
+        if (!r.is_array() || r.size() != 2 || !r[0].is_number_integer() || !r[1].is_number_integer()) {
+          return absl::InvalidArgumentError(bad);
+        }
+        const int b = r[0].get<int>(), e = r[1].get<int>();
+        if (!(0 <= b && b < e && e <= audio::kNumFeatures)) return absl::InvalidArgumentError(bad);
+        m->music_guidance_features_.emplace_back(b, e);
+      }
+    }
     DANCE_RETURN_IF_ERROR(read("top_p", 0.0, false, 1.0, "(0, 1]", &m->default_top_p_));
   }
   return std::shared_ptr<const Model>(std::move(m));

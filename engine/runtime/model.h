@@ -110,6 +110,10 @@ class Model {
   // The music guidance weight sessions use when SamplingOptions::music_guidance is negative (metadata
   // "sampling": {"music_guidance": M}, 0..100); 1 = off (models without it).
   float default_music_guidance() const { return default_music_guidance_; }
+  // The per-frame feature columns [begin, end) music guidance's lanes replace by the music mean (metadata
+  // "sampling": {"music_guidance_features": [[b, e], ...]}, the columns the model's music dropout
+  // replaced); empty = every column (the whole token is the mean).
+  const std::vector<std::pair<int, int>>& music_guidance_features() const { return music_guidance_features_; }
   // The nucleus cut sessions use when SamplingOptions::top_p is negative (metadata "sampling":
   // {"top_p": P}, (0, 1]); 1 = no cut (models without it).
   float default_top_p() const { return default_top_p_; }
@@ -152,6 +156,7 @@ class Model {
   float period_lock_sharpness_ = kDefaultPeriodLockSharpness;
   float default_guidance_ = 1.0f;
   float default_music_guidance_ = 1.0f;
+  std::vector<std::pair<int, int>> music_guidance_features_;
   float default_top_p_ = 1.0f;
   std::array<RowMatrix, 2> unit_codebook_;    // upper, lower
   std::vector<float> lower_code_height_;      // (K)

@@ -162,6 +162,20 @@ void StartLane(const SequenceState& from, const Eigen::MatrixXf& style_bias, Seq
 
 }  // namespace
 
+const float* Session::MeanMusicToken(const float* music) {
+  const Eigen::VectorXf& mean = model_->sequence().music_mean();
+  const auto& ranges = model_->music_guidance_features();
+  if (ranges.empty()) return mean.data();
+  mean_token_.assign(music, music + mean.size());
+  for (int f = 0; f < model_->config().frames_per_step; ++f) {
+    const int row = f * kFeatureDims;
+    for (const auto& [b, e] : ranges) {
+      std::copy(mean.data() + row + b, mean.data() + row + e, mean_token_.begin() + row + b);
+    }
+  }
+  return mean_token_.data();
+}
+
 void Session::PrepareLanes() {
   const bool uncond = uses_guidance();
   const bool music = uses_music_guidance();
@@ -709,7 +723,7 @@ absl::Status StepBatch(absl::Span<Session* const> sessions) {
         lanes.push_back(in);
       }
       if (s->music_cond_live_) {
-        in.music = model->sequence().music_mean().data();
+        in.music = s->MeanMusicToken(in.music);
         in.state = &s->music_cond_;
         lanes.push_back(in);
         if (s->music_uncond_live_) {

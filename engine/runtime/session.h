@@ -206,6 +206,10 @@ class Session {
   // Before a step: starts each lane this step needs that did not step last time from the history closest
   // to it (its missed steps cannot be replayed), with its own style; then records which lanes step.
   void PrepareLanes();
+  // The music token the music-mean lanes read this step, given the song's (`music`, 4F): the model's music
+  // mean, or with Model::music_guidance_features the song's token with those columns the mean. Valid until
+  // the next step.
+  const float* MeanMusicToken(const float* music);
   // The row of the largest-weight style of a (validated) style mix, a style named twice counting with its
   // summed weight, the first of equals ("none" for an empty mix); ApplyStyle's choice for the metre, dance
   // period and period lock.
@@ -290,6 +294,7 @@ class Session {
   SamplerScratch sampler_;
   std::vector<float> guided_u_, guided_l_;  // (K) scratch
   std::vector<float> music_u_, music_l_;    // (K) scratch of music guidance
+  std::vector<float> mean_token_;           // (4F) the music-mean lanes' token when only some columns are the mean
   Eigen::VectorXf lock_sim_;                // (K) scratch of the period lock
   std::vector<uint8_t> lock_seen_;          // (K) scratch of PeriodMoves
   std::vector<PoseFrame> output_;

@@ -273,6 +273,9 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
                     ("--own-iters", "-3"), ("--style-balance", "-0.1"), ("--style-balance", "1.5"),
                     ("--own-inputs", "-0.1"), ("--own-inputs", "1.5"), ("--own-passes", "0"),
                     ("--music-dropout", "-0.1"), ("--music-dropout", "1"),
+                    ("--music-dropout-features", "0:109"), ("--music-dropout-features", "5:5"),
+                    ("--music-dropout-features", "0-52"), ("--music-dropout-features", "x:2"),
+                    ("--music-guidance", "-0.5"), ("--music-guidance", "101"),
                     ("--own-passes", "3"),  # without --own-inputs it would do nothing
                     ("--self-share", "0"), ("--self-share", "1"), ("--self-tokens", str(tmp_path / "none.pt"))):
     with pytest.raises(SystemExit) as e:
@@ -331,4 +334,31 @@ def test_music_dropout_replaces_whole_windows_music_by_the_mean_and_keeps_the_re
     assert torch.equal(a, b)
   assert not torch.equal(music, dropped)
   assert not bool((music == model.music_mean).all(-1).all(-1).any())  # the caller's batch is not changed
+
+
+def test_music_dropout_of_some_feature_columns_keeps_the_others_and_is_written_for_the_engine():
+  import argparse
+
+  from training.train_seq import drop_music, sampling_meta
+  cfg = SeqConfig(feature_dim=5, pre_dim=8, d_model=16, n_heads=2, codebook_size=16, n_styles=2, style_dim=4,
+                  attn_window=8)
+  model = Danceba(cfg)
+  with torch.no_grad():
+    model.music_mean.copy_(-1.0 - torch.arange(cfg.music_dim, dtype=torch.float32))  # no music value is a mean
+  inputs, _ = make_batch(_tokens(), cfg, np.random.default_rng(0), batch=400, steps=16)
+  ranges = [(0, 2), (3, 4)]
+  out = drop_music(model, inputs, 0.3, np.random.default_rng(1), ranges)
+  music, dropped = inputs[0], out[0]
+  cols = torch.tensor([c % cfg.feature_dim in (0, 1, 3) for c in range(cfg.music_dim)])  # every frame's 0, 1, 3
+  is_mean = (dropped[..., cols] == model.music_mean[cols]).all(-1).all(-1)
+  assert abs(float(is_mean.float().mean()) - 0.3) < 0.06
+  assert torch.equal(dropped[..., ~cols], music[..., ~cols])  # the other columns stay the song's
+  assert torch.equal(dropped[~is_mean], music[~is_mean])      # windows not drawn are untouched
+  # The same draws as dropping every column: the ranges change what is replaced, not which windows.
+  whole = drop_music(model, inputs, 0.3, np.random.default_rng(1))[0]
+  assert torch.equal((whole == model.music_mean).all(-1).all(-1), is_mean)
+  # The exported metadata tells the engine which columns its music-mean lanes replace.
+  args = argparse.Namespace(guidance=3.0, music_guidance=0.5, music_dropout=0.3, music_dropout_features=ranges)
+  assert sampling_meta(args) == {"guidance": 3.0, "music_guidance": 0.5, "music_guidance_features": [[0, 2], [3, 4]]}
+  assert sampling_meta(argparse.Namespace(guidance=3.0)) == {"guidance": 3.0}
 

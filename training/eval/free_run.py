@@ -30,6 +30,7 @@ from training.data import skeleton as sk
 from training.eval.evaluate import Dance, Evaluator, segment_table
 from training.export import load_models
 from training.model.danceba import one_hot_style
+from training.train_seq import feature_mask
 
 
 def _codes_tensor(t: dict, part: str, n: int) -> torch.Tensor:
@@ -66,17 +67,19 @@ def teacher_forced_draws(model, t: dict, draws: int, gen: torch.Generator) -> tu
 @torch.no_grad()
 def free_running_draws(model, t: dict, draws: int, gen: torch.Generator, guidance: float = 1.0,
                        history_guidance: float = 0.0, history_mask: float = 1.0, mask_seed: int = 0,
-                       music_guidance: float = 1.0):
+                       music_guidance: float = 1.0, music_ranges=None):
   """(draws, T) codes drawn step by step from BOS, the model reading its own draws; style guidance w
   combines the logits as the engine does (docs/model.md section 6).
   history_guidance h (an experiment, not in the engine): logits + h (l_c - l_nh), l_c the style-conditioned
   prediction and l_nh the same model (its own state set) reading the draws with each input code replaced by
   BOS with probability history_mask (1: every code, the prediction from the music and style alone; 0.4: the
   training's past-motion dropout); h > 0 favours what the dance's own history adds over the music alone.
-  music_guidance m (an experiment, not in the engine): l_nm + m (l - l_nm), l the (style-guided) logits and
-  l_nm the same model in its own states reading the music mean instead of the song's music (PRE kept): m < 1
-  weakens what the song's music stream adds to the style and the rhythm (needs a model trained with
-  --music-dropout; docs/training.md, "Music guidance"). m = 1: the draws are exactly those without it."""
+  music_guidance m (the engine's SamplingOptions::music_guidance): l_nm + m (l - l_nm), l the (style-guided)
+  logits and l_nm the same model in its own states reading the music mean instead of the song's music (PRE
+  kept; with music_ranges, [(begin, end), ...] per-frame feature columns, the model's
+  sampling.music_guidance_features, only those columns): m < 1 weakens what the song's music stream adds to
+  the style and the rhythm (needs a model trained with --music-dropout; docs/training.md, "Music
+  guidance"). m = 1: the draws are exactly those without it."""
   cfg, k = model.cfg, model.cfg.codebook_size
   n = len(t["upper"]) - 1
   music = torch.from_numpy(np.asarray(t["music"][:n])).float()
@@ -86,6 +89,7 @@ def free_running_draws(model, t: dict, draws: int, gen: torch.Generator, guidanc
   u, l = torch.full((draws,), k), torch.full((draws,), k)
   sc = su = sn = smc = smu = None
   mean_music = model.music_mean.expand(draws, -1) if music_guidance != 1.0 else None
+  mask = feature_mask(music_ranges, cfg.feature_dim, cfg.frames_per_step) if music_ranges else None
   rng = np.random.default_rng(mask_seed)
   gu, gl = [], []
   for i in range(n):
@@ -96,9 +100,10 @@ def free_running_draws(model, t: dict, draws: int, gen: torch.Generator, guidanc
       uu, ul, su = model.step(m, p, u, l, uncond, su)
       lu, ll = uu + guidance * (cu - uu), ul + guidance * (cl - ul)
     if music_guidance != 1.0:
-      mu_, ml_, smc = model.step(mean_music, p, u, l, cond, smc)
+      mm = mean_music if mask is None else torch.where(mask, mean_music, m)
+      mu_, ml_, smc = model.step(mm, p, u, l, cond, smc)
       if guidance != 1.0:
-        uu, ul, smu = model.step(mean_music, p, u, l, uncond, smu)
+        uu, ul, smu = model.step(mm, p, u, l, uncond, smu)
         mu_, ml_ = uu + guidance * (mu_ - uu), ul + guidance * (ml_ - ul)
       lu, ll = mu_ + music_guidance * (lu - mu_), ml_ + music_guidance * (ll - ml_)
     if history_guidance != 0.0:
@@ -121,7 +126,8 @@ def kinetic_mean(ev: Evaluator, dances: list[Dance]) -> np.ndarray:
 
 
 def compare_song(model, vqs, ev: Evaluator, t: dict, draws: int, seed: int, guidance: float, skel,
-                 history_guidance: float = 0.0, history_mask: float = 1.0, music_guidance: float = 1.0) -> dict:
+                 history_guidance: float = 0.0, history_mask: float = 1.0, music_guidance: float = 1.0,
+                 music_ranges=None) -> dict:
   """The song's table row; under "dances" the decoded sets (real: one dance; the others: one per draw)."""
   gen = torch.Generator().manual_seed(seed)
   n = len(t["upper"]) - 1
@@ -130,7 +136,7 @@ def compare_song(model, vqs, ev: Evaluator, t: dict, draws: int, seed: int, guid
   out = {"song": t["id"], "real": float(real.mean()), "dances": {"real": [real_dance]}}
   for label, (cu, cl) in (("teacher_forced", teacher_forced_draws(model, t, draws, gen)),
                           ("free_running", free_running_draws(model, t, draws, gen, guidance, history_guidance,
-                                                              history_mask, seed, music_guidance))):
+                                                              history_mask, seed, music_guidance, music_ranges))):
     dances = [decode_codes(vqs, cu[i], cl[i], t["id"], skel) for i in range(draws)]
     x = kinetic_mean(ev, dances)
     out["dances"][label] = dances
@@ -164,7 +170,8 @@ def main(argv=None) -> None:
                   help="share of input codes set to BOS for l_nh (1: all; 0.4: the training's dropout)")
   ap.add_argument("--music-guidance", type=float, default=1.0,
                   help="free-running draws: l_nm + M (l - l_nm), l_nm with the music mean for the song's music "
-                       "(a model trained with --music-dropout)")
+                       "(a model trained with --music-dropout; only its sampling.music_guidance_features columns "
+                       "if it has them)")
   ap.add_argument("--fid", action="store_true",
                   help="also FID_k / FID_g of each set with every song pooled (use a validation token cache)")
   args = ap.parse_args(argv)
@@ -173,7 +180,8 @@ def main(argv=None) -> None:
   if args.draws < 1:
     ap.error("--draws must be at least 1")
   torch.set_grad_enabled(False)
-  model, vqs, _ = load_models(args.model)
+  model, vqs, meta = load_models(args.model)
+  ranges = meta.get("sampling", {}).get("music_guidance_features")  # the columns its music dropout replaced
   toks = [t for t in torch.load(args.tokens) if t.get("factor", 1.0) == 1.0]
   if args.songs:
     missing = set(args.songs) - {t["id"] for t in toks}
@@ -186,7 +194,7 @@ def main(argv=None) -> None:
   rows = []
   for t in toks:
     r = compare_song(model, vqs, ev, t, args.draws, args.seed, args.guidance, skel, args.history_guidance,
-                     args.history_mask, args.music_guidance)
+                     args.history_mask, args.music_guidance, ranges)
     rows.append(r)
     print(f"{r['song']:<18} {r['real']:+6.2f} / {r['teacher_forced']:+6.2f} / {r['free_running']:+6.2f} | "
           f"{r['teacher_forced_distance']:5.2f} / {r['free_running_distance']:5.2f}", flush=True)

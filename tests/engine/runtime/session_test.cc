@@ -304,13 +304,32 @@ TEST(Session, GuidanceSnapshotAndToggleMidStream) {
   EXPECT_GT(s->StateBytes(), 0);
 }
 
-// The tiny model with its music embedding's weights zeroed: its music stream adds only the bias, whatever
-// the music, exactly what the tiny model adds when it reads its music mean (normalised to 0).
-std::shared_ptr<const Model> LoadDeafTinyModel(const testing::TinyModelOptions& o) {
+// The tiny model with its music embedding's weights zeroed (for every frame's feature columns in `ranges`,
+// or all of them): those columns add nothing whatever the music, exactly what they add when the tiny model
+// reads its music mean there (normalised to 0).
+std::shared_ptr<const Model> LoadDeafTinyModel(const testing::TinyModelOptions& o,
+                                               const std::vector<std::pair<int, int>>& ranges = {}) {
+  constexpr int f = audio::kNumFeatures;
+  const int d = o.d_model;
   WeightsWriter w = testing::TinyModelWriter(o);
+  const std::vector<uint8_t> bytes = w.Serialize();
+  absl::StatusOr<WeightsFile> file = WeightsFile::Parse(bytes);
+  EXPECT_TRUE(file.ok());
+  const Tensor* weights = file->Find("seq.embed.music.weight");
+  EXPECT_NE(weights, nullptr);
+  std::vector<float> zeroed = weights->data;  // (d, 4F) row-major
+  for (int r = 0; r < d; ++r) {
+    for (int frame = 0; frame < 4; ++frame) {
+      for (int c = 0; c < f; ++c) {
+        const bool deaf = ranges.empty() || std::any_of(ranges.begin(), ranges.end(), [&](const auto& range) {
+          return c >= range.first && c < range.second;
+        });
+        if (deaf) zeroed[static_cast<size_t>(r) * 4 * f + frame * f + c] = 0.0f;
+      }
+    }
+  }
   w.Remove("seq.embed.music.weight");
-  w.Add("seq.embed.music.weight", {o.d_model, 4 * audio::kNumFeatures},
-        std::vector<float>(static_cast<size_t>(o.d_model) * 4 * audio::kNumFeatures, 0.0f));
+  w.Add("seq.embed.music.weight", {d, 4 * f}, zeroed);
   const std::string path = ::testing::TempDir() + "/deaf_tiny.dncw";
   EXPECT_TRUE(w.WriteFile(path).ok());
   absl::StatusOr<std::shared_ptr<const Model>> m = LoadModel(path);
@@ -344,6 +363,34 @@ TEST(Session, MusicGuidanceZeroDancesFromTheMusicMeanAlone) {
     EXPECT_GT(CodesDiffer(heard, mean_only, 0) + CodesDiffer(heard, mean_only, 1), 0) << styled;
     EXPECT_GT(CodesDiffer(heard, run(model, 0.5f), 0), 0) << styled;
   }
+  // A model whose music dropout replaced only some feature columns (sampling.music_guidance_features): its
+  // music-mean lanes read the song's token with those columns the mean, so m = 0 is the model deaf to
+  // exactly those columns.
+  const std::vector<std::pair<int, int>> timbre = {{0, 52}, {53, 54}};
+  testing::TinyModelOptions partial_options = o;
+  partial_options.music_guidance_features = timbre;
+  auto partial = LoadTinyModel(partial_options);
+  ASSERT_EQ(partial->music_guidance_features(), timbre);
+  auto partly_deaf = LoadDeafTinyModel(o, timbre);
+  auto run = [&](std::shared_ptr<const Model> m, float music_guidance, uint64_t seed = 12) {
+    SessionOptions opt = Opts(seed);
+    opt.style = {{"waltz", 1.0f}};
+    opt.sampling.guidance = 2.0f;
+    opt.sampling.music_guidance = music_guidance;
+    auto s = MakeSession(std::move(m), opt);
+    return RunStream(*s, audio, {audio.size()});
+  };
+  const std::vector<PoseFrame> partial_mean = run(partial, 0.0f);
+  ExpectSameFrames(partial_mean, run(partly_deaf, 1.0f), 0.0f);
+  int differ = 0;  // not the whole token's mean (the columns kept move the logits less: several seeds)
+  for (uint64_t seed = 12; seed < 16; ++seed) {
+    const std::vector<PoseFrame> a = run(partial, 0.0f, seed), b = run(model, 0.0f, seed);
+    differ += CodesDiffer(a, b, 0) + CodesDiffer(a, b, 1);
+  }
+  EXPECT_GT(differ, 0);
+  // [[0, F]] is the whole token, as without the key.
+  partial_options.music_guidance_features = {{0, audio::kNumFeatures}};
+  ExpectSameFrames(run(LoadTinyModel(partial_options), 0.3f), run(model, 0.3f), 0.0f);
 }
 
 TEST(Session, MusicGuidanceDefaultsToTheModelsAndIsRefusedOutOfRange) {
@@ -375,6 +422,15 @@ TEST(Session, MusicGuidanceDefaultsToTheModelsAndIsRefusedOutOfRange) {
   absl::StatusOr<std::shared_ptr<const Model>> bad = LoadModel(path);
   ASSERT_FALSE(bad.ok());
   EXPECT_NE(bad.status().message().find("sampling.music_guidance"), std::string::npos);
+  for (const char* features : {"[]", "[[0, 0]]", "[[5, 2]]", "[[0, 109]]", "[[-1, 3]]", "[0, 52]", "[[0, 52, 1]]",
+                               "[[0.5, 52]]", "\"timbre\""}) {
+    WeightsWriter wf = testing::TinyModelWriter(o);
+    wf.metadata()["sampling"]["music_guidance_features"] = nlohmann::json::parse(features);
+    ASSERT_TRUE(wf.WriteFile(path).ok());
+    bad = LoadModel(path);
+    ASSERT_FALSE(bad.ok()) << features;
+    EXPECT_NE(bad.status().message().find("sampling.music_guidance_features"), std::string::npos) << features;
+  }
   SessionOptions opt;
   opt.sampling.music_guidance = 101.0f;
   EXPECT_FALSE(Session::Create(plain, opt).ok());

@@ -135,6 +135,7 @@ WeightsWriter TinyModelWriter(const TinyModelOptions& o) {
   if (o.guidance >= 0.0) meta["sampling"]["guidance"] = o.guidance;
   if (o.top_p > 0.0) meta["sampling"]["top_p"] = o.top_p;
   if (o.music_guidance >= 0.0) meta["sampling"]["music_guidance"] = o.music_guidance;
+  for (const auto& [b, e] : o.music_guidance_features) meta["sampling"]["music_guidance_features"].push_back({b, e});
   WeightsWriter w(meta);
   Builder b(&w, o.seed, o.scale);
   b.Random("seq.music_mean", {4 * f}, 0.1f);

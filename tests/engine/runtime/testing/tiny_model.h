@@ -47,6 +47,7 @@ struct TinyModelOptions {
   double guidance = -1.0;     // >= 0: sampling.guidance (the sessions' default style guidance)
   double top_p = -1.0;        // > 0: sampling.top_p (the sessions' default nucleus cut)
   double music_guidance = -1.0;  // >= 0: sampling.music_guidance (the sessions' default music guidance)
+  std::vector<std::pair<int, int>> music_guidance_features;  // sampling.music_guidance_features
   double yaw_rate_mean = 0.0; // != 0: the lower decoder's mean yaw rate (radians per frame, channel 29)
   double height_mean = 0.0;   // != 0: the lower decoder's mean pelvis height (metres, channel 30; its std 1)
 };
