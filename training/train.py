@@ -273,15 +273,15 @@ def pretrain_seq(args, cfg, vqs, factors, run: pathlib.Path, vq_run: pathlib.Pat
 
 def parse_ranges(text: str) -> list[tuple[int, int]]:
   """'0:52,53:54' -> [(0, 52), (53, 54)]: per-frame music feature column ranges [begin, end)."""
-  from training.features.extract import FEATURE_DIMS as FEATURE_DIM
+  from training.features.extract import FEATURE_DIMS
   out = []
   for part in text.split(","):
     try:
       b, e = (int(x) for x in part.split(":"))
     except ValueError:
       raise argparse.ArgumentTypeError(f"bad range '{part}' (want BEGIN:END)") from None
-    if not 0 <= b < e <= FEATURE_DIM:
-      raise argparse.ArgumentTypeError(f"range {b}:{e} outside 0:{FEATURE_DIM} or empty")
+    if not 0 <= b < e <= FEATURE_DIMS:
+      raise argparse.ArgumentTypeError(f"range {b}:{e} outside 0:{FEATURE_DIMS} or empty")
     out.append((b, e))
   return out
 
@@ -508,6 +508,8 @@ def main(argv=None) -> int:
     ap.error(f"--aux-steps must be in 1..16 and --aux-weight >= 0, got {args.aux_steps}, {args.aux_weight}")
   if not 0.0 <= args.music_dropout < 1.0:
     ap.error(f"--music-dropout must be in [0, 1), got {args.music_dropout}")
+  if args.music_dropout_features and args.music_dropout == 0:
+    ap.error("--music-dropout-features chooses the columns --music-dropout replaces: give --music-dropout P > 0 too")
   if not 0.0 <= args.own_inputs <= 1.0:
     ap.error(f"--own-inputs must be in [0, 1], got {args.own_inputs}")
   if args.own_passes < 1:

@@ -225,7 +225,9 @@ def own_code_inputs(model, inputs, p: float, generator: torch.Generator | None =
 
 def sampling_meta(args) -> dict:
   """The exported file's sampling defaults (metadata "sampling"; docs/model.md section 6): the style guidance
-  weight, and the music guidance weight when it is not 1 (off)."""
+  weight, the music guidance weight when it is not 1 (off), and the feature columns the music dropout
+  replaced when it replaced only some (music_guidance_features: the engine's music-mean lanes replace the
+  same)."""
   meta = {"guidance": float(getattr(args, "guidance", 1.0))}
   music = float(getattr(args, "music_guidance", 1.0))
   if music != 1.0:

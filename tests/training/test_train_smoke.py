@@ -275,6 +275,7 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
                     ("--music-dropout", "-0.1"), ("--music-dropout", "1"),
                     ("--music-dropout-features", "0:109"), ("--music-dropout-features", "5:5"),
                     ("--music-dropout-features", "0-52"), ("--music-dropout-features", "x:2"),
+                    ("--music-dropout-features", "0:52"),  # without --music-dropout it would do nothing
                     ("--music-guidance", "-0.5"), ("--music-guidance", "101"),
                     ("--own-passes", "3"),  # without --own-inputs it would do nothing
                     ("--self-share", "0"), ("--self-share", "1"), ("--self-tokens", str(tmp_path / "none.pt"))):
