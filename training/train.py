@@ -378,7 +378,8 @@ def main(argv=None) -> int:
   ap.add_argument("--code-mask", type=float, default=0.4, help="past-motion dropout rate")
   ap.add_argument("--music-dropout", type=float, default=0.0,
                   help="each training window's music stream replaced by the mean with this probability, PRE "
-                       "kept (both phases; trains the prediction music guidance contrasts with; off)")
+                       "kept (both phases; trains the prediction music guidance contrasts with; off; 1 = the "
+                       "model never reads it, with --music-guidance 0)")
   ap.add_argument("--music-dropout-features", type=parse_ranges, default=None,
                   help="B:E[,B:E...]: music dropout replaces only these per-frame feature columns [B, E) by the "
                        "mean, the rest stays the song's (e.g. 0:52, the MFCCs, their deltas and the chroma); "
@@ -506,8 +507,11 @@ def main(argv=None) -> int:
     ap.error(f"--ema must be in [0, 1), got {args.ema}")
   if not 1 <= args.aux_steps <= 16 or args.aux_weight < 0:
     ap.error(f"--aux-steps must be in 1..16 and --aux-weight >= 0, got {args.aux_steps}, {args.aux_weight}")
-  if not 0.0 <= args.music_dropout < 1.0:
-    ap.error(f"--music-dropout must be in [0, 1), got {args.music_dropout}")
+  if not 0.0 <= args.music_dropout <= 1.0:
+    ap.error(f"--music-dropout must be in [0, 1], got {args.music_dropout}")
+  if args.music_dropout == 1 and args.music_guidance != 0:
+    ap.error("--music-dropout 1 trains a model that never reads the song's music (in the chosen columns): "
+             "give --music-guidance 0, so the engine runs it on the music mean as it was trained")
   if args.music_dropout_features and args.music_dropout == 0:
     ap.error("--music-dropout-features chooses the columns --music-dropout replaces: give --music-dropout P > 0 too")
   if not 0.0 <= args.own_inputs <= 1.0:

@@ -266,6 +266,21 @@ def drop_music(model, inputs, p: float, rng: np.random.Generator, ranges=None) -
   return music, pre, u, l, sw
 
 
+def mean_music_tokens(model, toks, ranges=None) -> list:
+  """Copies of `toks` whose music has the model's music mean in the per-frame feature columns `ranges`
+  (every column for None): what a model trained with music dropout 1 reads, and the engine's music-mean
+  lanes read, in place of the song's music."""
+  mean = model.music_mean.detach().numpy()
+  mask = feature_mask(ranges, model.cfg.feature_dim, model.cfg.frames_per_step)
+  cols = np.ones(len(mean), bool) if mask is None else mask.numpy()
+  out = []
+  for t in toks:
+    music = np.array(t["music"], dtype=np.float32)
+    music[:, cols] = mean[cols]
+    out.append(dict(t, music=music))
+  return out
+
+
 def loss_of(model, inputs, targets) -> torch.Tensor:
   lu, ll = model(*inputs)
   return code_loss(lu, ll, targets)
@@ -458,6 +473,9 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
   if music_dropout > 0:
     log(f"seq: music dropout {music_dropout:g} (a window's music replaced by the mean, PRE kept"
         + (f"; feature columns {music_ranges} only)" if music_ranges else ")"))
+  if music_dropout == 1:  # the model never reads those columns: validate it as the engine runs it (guidance 0)
+    val_toks = mean_music_tokens(model, val_toks, music_ranges)
+    log("seq: validation reads the music mean in the dropped columns too (music dropout 1)")
   balance = float(getattr(args, "style_balance", 1.0))
   lanes = Lanes(train_toks, cfg, rng, args.batch, STEPS, balance) if carry else None
   carried = None

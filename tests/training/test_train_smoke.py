@@ -272,7 +272,8 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
   for flag, bad in (("--own-seeds", "1,x"), ("--own-seeds", ""), ("--own-weight", "-1"), ("--own-weight", "lower=x"), ("--own-anchor", "-0.5"),
                     ("--own-iters", "-3"), ("--style-balance", "-0.1"), ("--style-balance", "1.5"),
                     ("--own-inputs", "-0.1"), ("--own-inputs", "1.5"), ("--own-passes", "0"),
-                    ("--music-dropout", "-0.1"), ("--music-dropout", "1"),
+                    ("--music-dropout", "-0.1"), ("--music-dropout", "1.5"),
+                    ("--music-dropout", "1"),  # never reads the music: refused unless --music-guidance 0
                     ("--music-dropout-features", "0:109"), ("--music-dropout-features", "5:5"),
                     ("--music-dropout-features", "0-52"), ("--music-dropout-features", "x:2"),
                     ("--music-dropout-features", "0:52"),  # without --music-dropout it would do nothing
@@ -362,4 +363,26 @@ def test_music_dropout_of_some_feature_columns_keeps_the_others_and_is_written_f
   args = argparse.Namespace(guidance=3.0, music_guidance=0.5, music_dropout=0.3, music_dropout_features=ranges)
   assert sampling_meta(args) == {"guidance": 3.0, "music_guidance": 0.5, "music_guidance_features": [[0, 2], [3, 4]]}
   assert sampling_meta(argparse.Namespace(guidance=3.0)) == {"guidance": 3.0}
+
+
+def test_music_dropout_1_reads_the_mean_and_validates_on_it():
+  from training.train_seq import drop_music, mean_music_tokens
+  cfg = SeqConfig(feature_dim=5, pre_dim=8, d_model=16, n_heads=2, codebook_size=16, n_styles=2, style_dim=4,
+                  attn_window=8)
+  model = Danceba(cfg)
+  with torch.no_grad():
+    model.music_mean.copy_(-1.0 - torch.arange(cfg.music_dim, dtype=torch.float32))
+  toks = _tokens()
+  before = [np.array(t["music"]) for t in toks]
+  for ranges in (None, [(1, 3)]):
+    # Dropping with probability 1 is what the validation tokens hold: the same windows, the same music.
+    masked = mean_music_tokens(model, toks, ranges)
+    a, _ = make_batch(toks, cfg, np.random.default_rng(0), batch=32, steps=16)
+    b, _ = make_batch(masked, cfg, np.random.default_rng(0), batch=32, steps=16)
+    dropped = drop_music(model, a, 1.0, np.random.default_rng(1), ranges)
+    assert torch.equal(dropped[0], b[0])
+    for x, y in zip(a[1:], b[1:]):
+      assert torch.equal(x, y)
+    assert not torch.equal(a[0], b[0])
+  assert all(np.array_equal(t["music"], m) for t, m in zip(toks, before))  # the caller's tokens unchanged
 
