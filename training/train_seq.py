@@ -581,6 +581,8 @@ def stage_engine_eval(args, vqs, run: pathlib.Path, log) -> dict:
                           (pathlib.Path(args.vq_run) if args.vq_run else run)
                           / f"tokens_val_{warp_tag(refs, bars, fold_tempo_of(args))}.pt",
                           refs, bars, fold_tempo=fold_tempo_of(args))
+  if float(getattr(args, "music_dropout", 0.0)) == 1:  # as in stage_seq: the model reads the music mean there
+    val_toks = mean_music_tokens(model, val_toks, getattr(args, "music_dropout_features", None))
   report = {"losses": validation(model, val_toks, model.cfg, n_batches=12)}
   log(f"eval losses: {json.dumps(report['losses'])}")
   if not pathlib.Path(args.out).is_file():
