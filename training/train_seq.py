@@ -281,6 +281,17 @@ def mean_music_tokens(model, toks, ranges=None) -> list:
   return out
 
 
+def as_the_engine_reads(args, model, toks) -> list:
+  """Validation tokens as the engine runs the exported model: at music guidance 0 (sampling_meta's
+  music_guidance) its music-mean lanes alone set the logits, so the song's music is replaced by the mean (in
+  the music_guidance_features columns, if any); at any other weight `toks` as they are. A model trained with
+  music dropout 1 (which train.py allows only with guidance 0) is validated on what it was trained to read."""
+  meta = sampling_meta(args)
+  if meta.get("music_guidance", 1.0) != 0:
+    return toks
+  return mean_music_tokens(model, toks, meta.get("music_guidance_features"))
+
+
 def loss_of(model, inputs, targets) -> torch.Tensor:
   lu, ll = model(*inputs)
   return code_loss(lu, ll, targets)
@@ -473,9 +484,10 @@ def stage_seq(args, cfg: SeqConfig, vqs, factors, run: pathlib.Path, log) -> Non
   if music_dropout > 0:
     log(f"seq: music dropout {music_dropout:g} (a window's music replaced by the mean, PRE kept"
         + (f"; feature columns {music_ranges} only)" if music_ranges else ")"))
-  if music_dropout == 1:  # the model never reads those columns: validate it as the engine runs it (guidance 0)
-    val_toks = mean_music_tokens(model, val_toks, music_ranges)
-    log("seq: validation reads the music mean in the dropped columns too (music dropout 1)")
+  engine_val = as_the_engine_reads(args, model, val_toks)
+  if engine_val is not val_toks:
+    val_toks = engine_val
+    log("seq: validation reads the music mean, as the engine does at music guidance 0")
   balance = float(getattr(args, "style_balance", 1.0))
   lanes = Lanes(train_toks, cfg, rng, args.batch, STEPS, balance) if carry else None
   carried = None
@@ -581,8 +593,7 @@ def stage_engine_eval(args, vqs, run: pathlib.Path, log) -> dict:
                           (pathlib.Path(args.vq_run) if args.vq_run else run)
                           / f"tokens_val_{warp_tag(refs, bars, fold_tempo_of(args))}.pt",
                           refs, bars, fold_tempo=fold_tempo_of(args))
-  if float(getattr(args, "music_dropout", 0.0)) == 1:  # as in stage_seq: the model reads the music mean there
-    val_toks = mean_music_tokens(model, val_toks, getattr(args, "music_dropout_features", None))
+  val_toks = as_the_engine_reads(args, model, val_toks)
   report = {"losses": validation(model, val_toks, model.cfg, n_batches=12)}
   log(f"eval losses: {json.dumps(report['losses'])}")
   if not pathlib.Path(args.out).is_file():

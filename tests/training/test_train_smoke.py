@@ -385,4 +385,14 @@ def test_music_dropout_1_reads_the_mean_and_validates_on_it():
       assert torch.equal(x, y)
     assert not torch.equal(a[0], b[0])
   assert all(np.array_equal(t["music"], m) for t, m in zip(toks, before))  # the caller's tokens unchanged
+  # The validation reads what the engine runs: the mean at music guidance 0 (in the dropped columns), the
+  # song's music at any other weight.
+  import argparse
+
+  from training.train_seq import as_the_engine_reads
+  args = argparse.Namespace(guidance=3.0, music_guidance=0.0, music_dropout=1.0, music_dropout_features=[(1, 3)])
+  for got, want in zip(as_the_engine_reads(args, model, toks), mean_music_tokens(model, toks, [(1, 3)])):
+    assert np.array_equal(got["music"], want["music"])
+  args.music_guidance = 0.5
+  assert as_the_engine_reads(args, model, toks) is toks
 
