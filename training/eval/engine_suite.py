@@ -33,6 +33,7 @@ import sys
 import numpy as np
 
 from training import train_data as td
+from training.eval import music
 from training.eval.engine_tempo import bootstrap_se
 
 METRICS = ("fid_k", "fid_g", "div_k", "div_g", "pfc", "jitter")
@@ -260,6 +261,9 @@ def main(argv=None) -> None:
     # Once, before the parallel draws: each would otherwise find the motion cache missing on a fresh checkout
     # and prepare it at the same time as the others.
     td.ensure_motion_cache()
+    # and librosa's beat tracker compiled here, so that parallel lanes only read its numba cache
+    # (music.warm_librosa: lanes compiling it at once corrupted it, 2026-12-06)
+    music.warm_librosa()
     run_parallel(draw_commands(args.model, out, args.draws, passthrough + subset +
                                (["--fill-from", args.fill_from] if fill else [])), args.lanes)
     run_parallel(tempo_commands(args.model, out, args.tempo_seeds, args.lanes, passthrough + subset), args.lanes)

@@ -63,6 +63,26 @@ def librosa_info(audio_path: str, style: str | None = None) -> dict:
           "duration_s": float(len(y) / sr), "source": "librosa", "style_prior": style or ""}
 
 
+def warm_librosa() -> bool:
+  """Runs librosa's beat tracker, both ways librosa_info calls it, on four seconds of clicks in this process,
+  so that its numba cache (cache=True, under .venv's site-packages) is compiled and written by one process.
+  Processes that compile it at the same time can write an inconsistent cache, and every later beat track
+  in that .venv then segfaults (numba issue #10128; seen here 2026-12-06 after parallel engine_suite lanes:
+  `find .venv -name '*.nb[ci]' -delete` repairs it). Call it before starting parallel workers that track
+  beats. False when librosa is not importable (Debian's python3)."""
+  try:
+    import librosa  # only in .venv
+  except ImportError:
+    return False
+  sr = 22050
+  y = np.zeros(4 * sr, np.float32)
+  y[::sr // 2] = 1.0  # clicks at 120 BPM
+  onset = librosa.onset.onset_strength(y=y, sr=sr)
+  librosa.beat.beat_track(onset_envelope=onset, sr=sr, units="time")
+  librosa.beat.beat_track(onset_envelope=onset, sr=sr, units="time", bpm=120.0)
+  return True
+
+
 def engine_info(audio_path: str) -> dict:
   from training.features.extract import extract_features
   s = extract_features(audio_path)["summary"]
