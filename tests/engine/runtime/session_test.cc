@@ -1328,14 +1328,14 @@ TEST(WarpedSession, PeriodLockReleasesTheLowerBodyAfterATurn) {
   DrainSteps(*a);
   absl::StatusOr<SessionSnapshot> snap = a->Snapshot();
   ASSERT_TRUE(snap.ok());
-  ASSERT_GE(snap->heading_history.size(), 16u);
+  ASSERT_GE(snap->sampling.heading_history.size(), 16u);
   std::vector<float> rest(audio.begin() + part, audio.end());
   const std::vector<PoseFrame> first = RunStream(*a, rest, {1000});
   auto b = MakeSession(spinning, opt);
   ASSERT_TRUE(b->Restore(*snap).ok());
   ExpectSameFrames(first, RunStream(*b, rest, {2500}));
   SessionSnapshot forgetful = *snap;
-  forgetful.heading_history.clear();
+  forgetful.sampling.heading_history.clear();
   auto c = MakeSession(spinning, opt);
   ASSERT_TRUE(c->Restore(forgetful).ok());
   const std::vector<PoseFrame> other = RunStream(*c, rest, {2500});
@@ -1434,8 +1434,8 @@ TEST(WarpedSession, PeriodLockDefaultSnapshotAndChanges) {
   DrainSteps(*s);
   absl::StatusOr<SessionSnapshot> snap = s->Snapshot();
   ASSERT_TRUE(snap.ok());
-  ASSERT_GE(snap->code_history.size(), 15u);
-  EXPECT_EQ(snap->heading_history.size(), snap->code_history.size());
+  ASSERT_GE(snap->sampling.code_history.size(), 15u);
+  EXPECT_EQ(snap->sampling.heading_history.size(), snap->sampling.code_history.size());
   std::vector<float> rest(audio.begin() + part, audio.end());
   const std::vector<PoseFrame> first = RunStream(*s, rest, {1000});
   auto fresh = MakeSession(model, opt);
