@@ -76,4 +76,11 @@ void FoldTempoFeatures(double rate, float* features) {
   features[kTempoIndex] = static_cast<float>(static_cast<double>(features[kTempoIndex]) - octaves);
 }
 
+void WarpedFeatureRow(const float* source, double rate, int64_t warped_frame, bool fold_tempo, double bar_frames,
+                      float* out) {
+  std::copy_n(source, kNumFeatures, out);
+  if (fold_tempo) FoldTempoFeatures(rate, out);
+  if (bar_frames > 0.0) BarClockPhase(warped_frame, bar_frames, out);
+}
+
 }  // namespace dance::engine::audio

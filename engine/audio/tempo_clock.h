@@ -59,6 +59,10 @@ class TempoClock {
   // Consumes the running tempo (BPM) of the next real frame; non-finite or non-positive values count as
   // the reference tempo.
   Span Push(double tempo_bpm);
+  // Consumes the next real frame's feature row (kNumFeatures), reading its `tempo` column. The engine and
+  // `dance-features --clock` (training) both clock from this float32 column, so their warped timelines
+  // agree bit for bit.
+  Span PushFeatures(const float* features) { return Push(TempoFromFeature(features[kTempoIndex])); }
 
   // The tempo folded into the reference octave (updates the octave choice).
   double Fold(double tempo_bpm);
@@ -103,6 +107,13 @@ void BarClockPhase(int64_t warped_frame, double bar_frames, float* features);
 // and `tempo` becomes tempo - log2(r). The rest of the row is unchanged. The engine's session and
 // `dance-features --clock --fold-tempo` (training) both use this function.
 void FoldTempoFeatures(double rate, float* features);
+
+// The feature row (kNumFeatures) of warped frame `warped_frame` whose source frame's row is `source` and
+// clock rate `rate`: the source row, tempo-folded if `fold_tempo`, with the bar clock's phase if
+// bar_frames > 0. The engine's session and `dance-features --clock` (training) both build warped rows
+// with it. `out` may not alias `source`.
+void WarpedFeatureRow(const float* source, double rate, int64_t warped_frame, bool fold_tempo, double bar_frames,
+                      float* out);
 
 }  // namespace dance::engine::audio
 

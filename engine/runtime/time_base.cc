@@ -109,11 +109,8 @@ void TimeBase::CollectFrames(std::vector<PoseFrame>* out) {
   s.pending_features.insert(s.pending_features.end(), popped_.features.begin(), popped_.features.end());
   s.pending_pre.insert(s.pending_pre.end(), popped_.pre.begin(), popped_.pre.end());
   if (warped()) {
-    // The clock reads the tempo from the feature column (float32), exactly as `dance-features --clock`
-    // does for training, so the two timelines agree bit for bit.
     for (int64_t i = 0; i < n; ++i) {
-      const float tempo = popped_.features[i * kFeatureDims + audio::kTempoIndex];
-      const audio::TempoClock::Span span = s.warp.clock.Push(audio::TempoClock::TempoFromFeature(tempo));
+      const audio::TempoClock::Span span = s.warp.clock.PushFeatures(popped_.features.data() + i * kFeatureDims);
       if (span.frame >= s.warp.next_output) s.warp.starts.push_back(span.begin);
       for (int64_t j = span.first_warped; j < span.end_warped; ++j) {
         s.warp.source.push_back(span.frame);
@@ -150,10 +147,9 @@ void TimeBase::Inputs(int64_t step, const float** music, const float** pre) {
     for (int f = 0; f < fps; ++f) {
       const int64_t w = first_warped + f - s.warp.first_source;
       src = s.warp.source[w] - s.first_pending_frame;
-      float* row = music_token_.data() + static_cast<size_t>(f) * kFeatureDims;
-      std::copy_n(s.pending_features.data() + src * kFeatureDims, kFeatureDims, row);
-      if (model_->fold_tempo()) audio::FoldTempoFeatures(s.warp.rate[w], row);
-      if (s.bar_frames > 0.0) audio::BarClockPhase(first_warped + f, s.bar_frames, row);
+      audio::WarpedFeatureRow(s.pending_features.data() + src * kFeatureDims, s.warp.rate[w], first_warped + f,
+                              model_->fold_tempo(), s.bar_frames,
+                              music_token_.data() + static_cast<size_t>(f) * kFeatureDims);
     }
     *music = music_token_.data();
     *pre = s.pending_pre.data() + src * kPreDims;

@@ -202,22 +202,19 @@ absl::Status Run(const Flags& flags) {
     TempoClock clock({.reference_bpm = flags.tempo_ref_bpm});
     const double bar_frames = flags.bar_beats > 0 ? BarClockFrames(flags.bar_beats, flags.tempo_ref_bpm) : 0.0;
     std::vector<float> rows;
+    std::array<float, kNumFeatures> row;
     for (int64_t n = 0; n < frames; ++n) {
-      const TempoClock::Span span =
-          clock.Push(TempoClock::TempoFromFeature(all.features[n * kNumFeatures + kTempoIndex]));
+      const float* source = all.features.data() + n * kNumFeatures;
+      const TempoClock::Span span = clock.PushFeatures(source);
       for (int64_t j = span.first_warped; j < span.end_warped; ++j) {
         rows.push_back(static_cast<float>(n));
         rows.push_back(static_cast<float>(span.RealPosition(j)));
+        WarpedFeatureRow(source, span.rate, j, flags.fold_tempo, bar_frames, row.data());
         if (flags.bar_beats > 0) {
-          std::array<float, kNumFeatures> row{};
-          BarClockPhase(j, bar_frames, row.data());
           rows.push_back(row[kBarPhaseCosIndex]);
           rows.push_back(row[kBarPhaseSinIndex]);
         }
         if (flags.fold_tempo) {
-          std::array<float, kNumFeatures> row;
-          std::copy_n(all.features.data() + n * kNumFeatures, kNumFeatures, row.data());
-          FoldTempoFeatures(span.rate, row.data());
           rows.insert(rows.end(), row.begin() + kTempogramBegin, row.begin() + kTempogramBegin + kNumTempogram);
           rows.push_back(row[kTempoIndex]);
         }
