@@ -52,13 +52,13 @@
 #include "absl/status/statusor.h"
 #include "absl/types/span.h"
 #include "engine/nn/sampling.h"
-#include "engine/runtime/body_decoder.h"
+#include "engine/runtime/internal/body_decoder.h"
 #include "engine/runtime/model.h"
 #include "engine/runtime/pose_frame.h"
-#include "engine/runtime/sampling_policy.h"
-#include "engine/runtime/sequence_lanes.h"
+#include "engine/runtime/internal/sampling_policy.h"
+#include "engine/runtime/internal/sequence_lanes.h"
 #include "engine/runtime/style_mix.h"
-#include "engine/runtime/time_base.h"
+#include "engine/runtime/internal/time_base.h"
 
 namespace dance::engine {
 

@@ -24,10 +24,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
-#include "engine/audio/decoder.h"
-#include "engine/runtime/dance_writer.h"
-#include "engine/runtime/model.h"
-#include "engine/runtime/session.h"
+#include "engine/engine.h"
 #include "nlohmann/json.hpp"
 
 namespace {

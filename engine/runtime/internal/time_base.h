@@ -19,8 +19,8 @@
 //
 // State: every field that changes lives in TimeBaseState (plus the front end's own snapshot), so
 // Snapshot/Restore/Reset cover it by construction. Not thread-safe (owned by one Session).
-#ifndef DANCE_ENGINE_RUNTIME_TIME_BASE_H_
-#define DANCE_ENGINE_RUNTIME_TIME_BASE_H_
+#ifndef DANCE_ENGINE_RUNTIME_INTERNAL_TIME_BASE_H_
+#define DANCE_ENGINE_RUNTIME_INTERNAL_TIME_BASE_H_
 
 #include <array>
 #include <cstdint>
@@ -133,4 +133,4 @@ class TimeBase {
 
 }  // namespace dance::engine
 
-#endif  // DANCE_ENGINE_RUNTIME_TIME_BASE_H_
+#endif  // DANCE_ENGINE_RUNTIME_INTERNAL_TIME_BASE_H_

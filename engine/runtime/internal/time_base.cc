@@ -1,4 +1,4 @@
-#include "engine/runtime/time_base.h"
+#include "engine/runtime/internal/time_base.h"
 
 #include <algorithm>
 #include <cmath>

@@ -1,4 +1,4 @@
-#include "engine/runtime/sequence_lanes.h"
+#include "engine/runtime/internal/sequence_lanes.h"
 
 #include <algorithm>
 

@@ -8,8 +8,8 @@
 //   body.Finish(frame, /*foot_lock=*/true);
 //
 // State: every field that changes lives in BodyState (snapshot = copy). Not thread-safe.
-#ifndef DANCE_ENGINE_RUNTIME_BODY_DECODER_H_
-#define DANCE_ENGINE_RUNTIME_BODY_DECODER_H_
+#ifndef DANCE_ENGINE_RUNTIME_INTERNAL_BODY_DECODER_H_
+#define DANCE_ENGINE_RUNTIME_INTERNAL_BODY_DECODER_H_
 
 #include <array>
 #include <cstdint>
@@ -61,4 +61,4 @@ class BodyDecoder {
 
 }  // namespace dance::engine
 
-#endif  // DANCE_ENGINE_RUNTIME_BODY_DECODER_H_
+#endif  // DANCE_ENGINE_RUNTIME_INTERNAL_BODY_DECODER_H_

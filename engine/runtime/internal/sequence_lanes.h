@@ -15,8 +15,8 @@
 //   lanes.SetCodes(u, l);
 //
 // State: every field that changes lives in LaneState (snapshot = copy). Not thread-safe.
-#ifndef DANCE_ENGINE_RUNTIME_SEQUENCE_LANES_H_
-#define DANCE_ENGINE_RUNTIME_SEQUENCE_LANES_H_
+#ifndef DANCE_ENGINE_RUNTIME_INTERNAL_SEQUENCE_LANES_H_
+#define DANCE_ENGINE_RUNTIME_INTERNAL_SEQUENCE_LANES_H_
 
 #include <cstdint>
 #include <utility>
@@ -93,4 +93,4 @@ class SequenceLanes {
 
 }  // namespace dance::engine
 
-#endif  // DANCE_ENGINE_RUNTIME_SEQUENCE_LANES_H_
+#endif  // DANCE_ENGINE_RUNTIME_INTERNAL_SEQUENCE_LANES_H_

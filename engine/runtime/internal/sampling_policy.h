@@ -11,8 +11,8 @@
 //   for each decoded frame: policy.ObserveDecodedHeight(pelvis_height);
 //
 // State: every field that changes lives in SamplingState (snapshot = copy). Not thread-safe.
-#ifndef DANCE_ENGINE_RUNTIME_SAMPLING_POLICY_H_
-#define DANCE_ENGINE_RUNTIME_SAMPLING_POLICY_H_
+#ifndef DANCE_ENGINE_RUNTIME_INTERNAL_SAMPLING_POLICY_H_
+#define DANCE_ENGINE_RUNTIME_INTERNAL_SAMPLING_POLICY_H_
 
 #include <cstddef>
 #include <cstdint>
@@ -26,7 +26,7 @@
 #include "absl/types/span.h"
 #include "engine/nn/sampling.h"
 #include "engine/runtime/model.h"
-#include "engine/runtime/sequence_lanes.h"
+#include "engine/runtime/internal/sequence_lanes.h"
 #include "engine/runtime/style_mix.h"
 
 namespace dance::engine {
@@ -143,4 +143,4 @@ void UpdateCrouchGuard(bool crouched, double* load, bool* active);
 
 }  // namespace dance::engine
 
-#endif  // DANCE_ENGINE_RUNTIME_SAMPLING_POLICY_H_
+#endif  // DANCE_ENGINE_RUNTIME_INTERNAL_SAMPLING_POLICY_H_

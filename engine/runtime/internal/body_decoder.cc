@@ -1,4 +1,4 @@
-#include "engine/runtime/body_decoder.h"
+#include "engine/runtime/internal/body_decoder.h"
 
 namespace dance::engine {
 

@@ -1,4 +1,4 @@
-#include "engine/runtime/sampling_policy.h"
+#include "engine/runtime/internal/sampling_policy.h"
 
 #include <algorithm>
 #include <cmath>
