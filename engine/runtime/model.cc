@@ -93,6 +93,18 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
         upper.frames_per_code(), " frames per code; expected 45/31 x ", c.frames_per_step));
   }
   std::shared_ptr<Model> m(new Model(std::move(seq), std::move(upper), std::move(lower)));
+  // The encoders are optional (the controls need them; files exported before them dance without).
+  absl::StatusOr<VqEncoder> upper_enc = VqEncoder::Load(weights, "upper", m->upper_.codebook());
+  absl::StatusOr<VqEncoder> lower_enc = VqEncoder::Load(weights, "lower", m->lower_.codebook());
+  if (upper_enc.ok() && lower_enc.ok()) {
+    if (upper_enc->in_dim() != m->upper_.out_dim() || lower_enc->in_dim() != m->lower_.out_dim()) {
+      return absl::InvalidArgumentError("weights file: the VQ encoders' input sizes differ from the decoders' output");
+    }
+    m->encoders_.emplace_back(*std::move(upper_enc));
+    m->encoders_.emplace_back(*std::move(lower_enc));
+  } else if (!absl::IsNotFound(upper_enc.status()) || !absl::IsNotFound(lower_enc.status())) {
+    return !upper_enc.ok() && !absl::IsNotFound(upper_enc.status()) ? upper_enc.status() : lower_enc.status();
+  }
   m->metadata_ = weights.metadata();
   for (int stream = 0; stream < 2; ++stream) {
     RowMatrix unit = (stream == 0 ? m->upper_ : m->lower_).codebook();

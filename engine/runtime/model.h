@@ -15,6 +15,7 @@
 
 #include "absl/status/statusor.h"
 #include "engine/model/sequence_model.h"
+#include "engine/vq/pose_encoder.h"
 #include "engine/vq/skeleton.h"
 #include "engine/vq/vq_decoder.h"
 
@@ -47,6 +48,10 @@ class Model {
   const SeqConfig& config() const { return sequence_.config(); }
   const VqDecoder& upper_decoder() const { return upper_; }
   const VqDecoder& lower_decoder() const { return lower_; }
+  // The VQ-VAE encoders (given motion to codes; the controls), if the file has them (metadata
+  // vq.<part>.encoder_ops); null otherwise.
+  const VqEncoder* upper_encoder() const { return encoders_.empty() ? nullptr : &encoders_[0]; }
+  const VqEncoder* lower_encoder() const { return encoders_.empty() ? nullptr : &encoders_[1]; }
   const Skeleton& skeleton() const { return skeleton_; }
   // Style names in embedding-row order (size n_styles); "none" is implicit (row n_styles).
   const std::vector<std::string>& styles() const { return styles_; }
@@ -141,6 +146,7 @@ class Model {
   SequenceModel sequence_;
   VqDecoder upper_;
   VqDecoder lower_;
+  std::vector<VqEncoder> encoders_;  // upper, lower; empty if the file has none
   Skeleton skeleton_;
   std::vector<std::string> styles_;
   nlohmann::json metadata_;
