@@ -259,7 +259,7 @@ def graft_tensors(path: str, src: str, prefixes: list[str]) -> list[str]:
   """Rewrites `path` in place with every tensor whose name starts with one of `prefixes` taken from `src`
   (names, shapes and dtypes must match: the same architecture), the other tensors and the metadata
   bit-exact; records the graft under metadata training.grafted. Returns the names replaced. E.g. one
-  VQ-VAE's decoder, fine-tuned by training.train_vq_decoder from an older file, into the shipped model."""
+  VQ-VAE's decoder, fine-tuned by training.experiments.vq_decoder from an older file, into the shipped model."""
   header, tensors = read_dncw(path)
   src_header, src_tensors = read_dncw(src)
   src_dtypes = {e["name"]: e["dtype"] for e in src_header["tensors"]}

@@ -12,7 +12,7 @@ import sys
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 
-from training.features.librosa_compare import compare_song, compare_steady_tone, find_songs  # noqa: E402
+from training.experiments.librosa_compare import compare_song, compare_steady_tone, find_songs  # noqa: E402
 
 
 def main() -> None:

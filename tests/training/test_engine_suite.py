@@ -136,7 +136,7 @@ def test_suite_prepares_a_missing_motion_cache_once_before_the_draws(tmp_path, m
   # make it once, before the parallel draws start (which would otherwise each find it missing).
   import pytest
 
-  from training import train_data as td
+  from training.common import clips as td
   from training.data import prepare
 
   class Stop(Exception):

@@ -229,7 +229,7 @@ def test_beat_lock_separates_locked_from_unlocked():
 
 
 def test_tracker_level_errors_fold_octaves_only():
-    from training.eval.tracker_levels import level_errors, octave_flips, octave_mismatches, window_tempi
+    from training.experiments.tracker_levels import level_errors, octave_flips, octave_mismatches, window_tempi
     base = [100.0, 120.0, 120.0, 120.0]
     # 0.85x: exact following, an octave below (the clock folds it), and a 3/2 switch.
     stretched = [90.0, 102.0, 51.0, 153.0]
@@ -246,7 +246,7 @@ def test_tracker_level_errors_fold_octaves_only():
 
 
 def test_bar_seconds_folds_like_the_clock():
-    from training.eval.period_in_bars import bar_seconds
+    from training.experiments.period_in_bars import bar_seconds
     # A waltz tracked at the eighth-note level (174 BPM) folds to 87 BPM: a 3-beat bar of 2.07 s.
     assert abs(bar_seconds(174.0, 86.03, "waltz") - 3 * 60 / 87.0) < 1e-9
     assert abs(bar_seconds(87.0, 86.03, "waltz") - 3 * 60 / 87.0) < 1e-9
@@ -257,7 +257,7 @@ def test_bar_seconds_folds_like_the_clock():
 def test_dance_period_beats_measures_each_styles_period_on_the_warped_timeline(tmp_path, monkeypatch):
   # Two waltzes whose speed repeats every 3 beats of the style's reference (R = 90: a beat is 20 warped
   # frames, 3 beats 2 s), a cha-cha at 2 beats of 120 BPM (1 s), and a motion-only dance (no music): left out.
-  from training import train_data as td
+  from training.common import clips as td
   refs = {"waltz": 90.0, "cha-cha": 120.0, "salsa": 105.0}
   dances = {"w1": ("waltz", 2.0 * 2, "a.ogg"), "w2": ("waltz", 2.0 * 2, "b.ogg"),
             "c1": ("cha-cha", 1.0 * 2, "c.ogg"), "s1": ("salsa", 1.0, "")}
@@ -276,7 +276,7 @@ def test_dance_period_beats_measures_each_styles_period_on_the_warped_timeline(t
 
 
 def test_style_probe_tells_raised_arms_from_a_hold():
-  from training.eval import style_probe
+  from training.experiments import style_probe
   def style_dance(raised: bool, seed: int):
     pos = _dance(seconds=20, seed=seed, period=0.8 + 0.1 * seed)
     for j in (J["left_wrist"], J["right_wrist"], J["left_hand"], J["right_hand"]):
@@ -300,7 +300,7 @@ def test_style_probe_tells_raised_arms_from_a_hold():
 
 
 def test_style_reach_is_one_for_the_reference_and_zero_for_a_blend():
-  from training.eval.fid_parts import style_reach
+  from training.experiments.fid_parts import style_reach
   rng = np.random.default_rng(0)
   ref = np.concatenate([rng.normal(2.0, 0.3, (20, 4)), rng.normal(-1.0, 0.3, (40, 4))])
   rows = [{"dance": "tang_DANCE_C_1"}] * 20 + [{"dance": "tang_DANCE_W_1"}] * 40
@@ -335,7 +335,7 @@ def test_on_real_spans_cuts_each_dance_to_its_real_counterparts_song_time():
 
 
 def test_leave_one_out_removes_each_song_from_both_sides():
-  from training.eval.fid_parts import leave_one_out
+  from training.experiments.fid_parts import leave_one_out
   real = [evaluate.Dance(n, _dance(seed=i, seconds=30, period=0.8 + 0.1 * i)) for i, n in enumerate("abc")]
   ev = evaluate.Evaluator([evaluate.Dance(f"r{i}", _dance(seed=10 + i, seconds=30)) for i in range(5)], real)
   val = evaluate.segment_table(real, beats_of=lambda d: np.zeros(0))
@@ -351,7 +351,7 @@ def test_leave_one_out_removes_each_song_from_both_sides():
 
 
 def test_song_mean_swap_separates_song_averages_from_the_spread_within_songs():
-  from training.eval.fid_parts import song_mean_swap
+  from training.experiments.fid_parts import song_mean_swap
   names = ["tang_DANCE_C_1", "tang_DANCE_W_1", "tang_DANCE_W_2"]
   real = [evaluate.Dance(n, _dance(seed=i, seconds=40, period=0.8 + 0.1 * i)) for i, n in enumerate(names)]
   ref = [evaluate.Dance(f"tang_DANCE_{s}_{i + 5}", _dance(seed=10 + i, seconds=30, period=0.7 + 0.15 * i))
@@ -384,7 +384,7 @@ def test_song_mean_swap_separates_song_averages_from_the_spread_within_songs():
 def test_free_run_feeds_the_models_own_draws_and_teacher_forcing_the_real_codes():
   import types
   import torch
-  from training.eval.free_run import free_running_draws, teacher_forced_draws
+  from training.experiments.free_run import free_running_draws, teacher_forced_draws
   k = 8
 
   def peaked(codes):  # logits that put all the mass on (input code + 1) mod K
@@ -428,7 +428,7 @@ def test_free_run_feeds_the_models_own_draws_and_teacher_forcing_the_real_codes(
   np.testing.assert_array_equal(fu[:, 1:], np.full((2, 5), 3))
   np.testing.assert_array_equal(fl[:, 1:], np.full((2, 5), 3))
   # --fid pools draw i of every song into one set per draw (and the real decode once).
-  from training.eval.free_run import fid_of_sets
+  from training.experiments.free_run import fid_of_sets
 
   class Names:
     def fid_div(self, dances):
@@ -463,7 +463,7 @@ def test_free_run_feeds_the_models_own_draws_and_teacher_forcing_the_real_codes(
 
 
 def test_real_spread_draws_the_validations_composition_and_ranks_an_outlying_set_high():
-  from training.eval import real_spread
+  from training.experiments import real_spread
   rng = np.random.default_rng(0)
   ids = ([f"tang_DANCE_W_{i}" for i in range(10)] + [f"tang_DANCE_C_{i}" for i in range(4)] +
          [f"tang_DANCE_R_{i}" for i in range(4)] + ["tang_DANCE_T_5_a", "tang_DANCE_T_5_b"])

@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 import torch
 
-from training import train_data as td
+from training.common import clips as td
 from training.data import aistpp, prepare
 from training.data.skeleton import J, load_skeleton
 from training.model import SeqConfig, VQConfig
 from training.model.danceba import Danceba
 from training.model.vqvae import PoseVQVAE
-from training.train_seq import loss_of, make_batch, tokenize
+from training.common.seq_loss import loss_of
+from training.common.tokens import make_batch, tokenize
 
 BPM, SECONDS, SR = 120.0, 20.0, 24000
 

@@ -1,4 +1,4 @@
-"""The tempo-normalised training clips (train_data.load_warped_clip) on a click track: the warped dance is
+"""The tempo-normalised training clips (training.common.clips.load_warped_clip) on a click track: the warped dance is
 the same at every tempo factor (the engine's clock folds the stretched song to the reference), while the
 music features carry the stretched tempo (tempo augmentation of the warped phase, --warp-tempo-factors)."""
 import shutil
@@ -7,7 +7,7 @@ import wave
 import numpy as np
 import pytest
 
-from training import train_data as td
+from training.common import clips as td
 from training.data.skeleton import load_skeleton
 
 BPM, SECONDS, SR = 120.0, 40.0, 24000

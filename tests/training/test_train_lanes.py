@@ -5,8 +5,9 @@ import torch
 
 from training.model import SeqConfig
 from training.model.danceba import Danceba
-from training.train_lanes import Lanes, detach, reset_rows
-from training.train_seq import code_loss, song_loss, window_probs
+from training.common.lanes import Lanes, detach, reset_rows
+from training.common.seq_loss import code_loss, song_loss
+from training.common.tokens import window_probs
 
 K = 16
 

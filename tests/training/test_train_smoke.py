@@ -4,8 +4,10 @@ import torch
 
 from training.model import SeqConfig, VQConfig
 from training.model.danceba import Danceba
-from training.train_seq import loss_of, make_batch, own_code_inputs, validation, window_probs
-from training.train_vq import integrate_root_torch, train_vq
+from training.common.seq_inputs import own_code_inputs
+from training.common.seq_loss import loss_of, validation
+from training.common.tokens import make_batch, window_probs
+from training.common.vq_training import integrate_root_torch, train_vq
 
 
 def _tokens(n_clips=3, n=90, k=16, f=5, p=8, seed=0):
@@ -184,7 +186,7 @@ def test_root_integration_matches_representation():
 
 def test_vq_path_weight_scales_only_the_root_path_term():
   from training.model.vqvae import PoseVQVAE
-  from training.train_vq import vq_loss
+  from training.common.vq_training import vq_loss
   torch.manual_seed(0)
   x = torch.randn(2, 16, 31) * 0.02
   losses = {}
@@ -201,7 +203,7 @@ def test_vq_path_weight_scales_only_the_root_path_term():
 
 def test_vq_vel_and_acc_weights_scale_their_terms():
   from training.model.vqvae import PoseVQVAE
-  from training.train_vq import vq_loss
+  from training.common.vq_training import vq_loss
   x = torch.randn(2, 16, 45) * 0.05
   out = {}
   for vw, aw in ((1.0, 1.0), (3.0, 1.0), (1.0, 4.0)):
@@ -216,33 +218,33 @@ def test_vq_vel_and_acc_weights_scale_their_terms():
 
 
 def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path):
-  import argparse
+  import dataclasses
   import json
 
   import pytest
 
   from training import train
-  from training.train_seq import time_base_meta
+  from training.common.run_meta import time_base_meta
+  from training.run_config import RunConfig
   (tmp_path / "style_reference_bpm.json").write_text(json.dumps({"waltz": 87.0, "tango": 128.0}))
   (tmp_path / "dance_period_beats.json").write_text(json.dumps({"waltz": 3, "tango": 2}))
-  args = argparse.Namespace(tempo_ref=105.0, period_lock=8.0, period_lock_periods=[1, 2], bar_clock=False,
-                            style_period_lock=train.parse_style_weights("waltz=0, tango=2.5"),
-                            period_lock_sharpness=10.0)
-  tb = time_base_meta(args, tmp_path, print)
+  config = RunConfig(tempo_ref=105.0, period_lock=8.0, period_lock_periods=(1, 2), bar_clock=False,
+                     style_period_lock=train.parse_style_weights("waltz=0, tango=2.5"), period_lock_sharpness=10.0)
+  tb = time_base_meta(config, tmp_path, print)
   assert tb["kind"] == "tempo" and tb["dance_period_beats"] == {"waltz": 3, "tango": 2}
   assert tb["period_lock"] == 8.0 and tb["period_lock_periods"] == {"upper": 1, "lower": 2}
   assert tb["style_period_lock"] == {"waltz": 0.0, "tango": 2.5} and tb["period_lock_sharpness"] == 10.0
-  args.style_period_lock = train.parse_style_weights("")
-  assert "style_period_lock" not in time_base_meta(args, tmp_path, print)
+  config = dataclasses.replace(config, style_period_lock=train.parse_style_weights(""))
+  assert "style_period_lock" not in time_base_meta(config, tmp_path, print)
   # The tempo fold: written only when asked for, and its tokens are cached apart from the unfolded ones.
-  from training.train_seq import warp_tag
-  assert "fold_tempo" not in time_base_meta(args, tmp_path, print)
-  args.fold_tempo = True
-  assert time_base_meta(args, tmp_path, print)["fold_tempo"] is True
+  from training.common.run_meta import warp_tag
+  assert "fold_tempo" not in time_base_meta(config, tmp_path, print)
+  config = dataclasses.replace(config, fold_tempo=True)
+  assert time_base_meta(config, tmp_path, print)["fold_tempo"] is True
   refs = {"waltz": 87.0, "tango": 128.0}
   assert warp_tag(refs, None, True) == warp_tag(refs) + "_fold"
-  args.tempo_ref = 0.0
-  assert time_base_meta(args, tmp_path, print) == {"kind": "fixed"}
+  config = dataclasses.replace(config, tempo_ref=0.0)
+  assert time_base_meta(config, tmp_path, print) == {"kind": "fixed"}
   with pytest.raises(SystemExit) as e:
     train.main(["--run", str(tmp_path / "never"), "--fold-tempo", "--tempo-ref", "0"])
   assert e.value.code == 2
@@ -291,7 +293,7 @@ def test_time_base_meta_writes_the_period_locks_reach_and_style_weights(tmp_path
 
 
 def test_aux_heads_predict_the_codes_two_and_more_steps_ahead():
-  from training.train_seq import AuxHeads
+  from training.common.seq_loss import AuxHeads
   k = 16
   cfg = SeqConfig(feature_dim=5, pre_dim=8, d_model=4, n_heads=2, codebook_size=k, n_styles=2, style_dim=4,
                   attn_window=8)
@@ -320,7 +322,7 @@ def test_aux_heads_predict_the_codes_two_and_more_steps_ahead():
 
 
 def test_music_dropout_replaces_whole_windows_music_by_the_mean_and_keeps_the_rest():
-  from training.train_seq import drop_music
+  from training.common.seq_inputs import drop_music
   cfg = SeqConfig(feature_dim=5, pre_dim=8, d_model=16, n_heads=2, codebook_size=16, n_styles=2, style_dim=4,
                   attn_window=8)
   model = Danceba(cfg)
@@ -339,9 +341,9 @@ def test_music_dropout_replaces_whole_windows_music_by_the_mean_and_keeps_the_re
 
 
 def test_music_dropout_of_some_feature_columns_keeps_the_others_and_is_written_for_the_engine():
-  import argparse
-
-  from training.train_seq import drop_music, sampling_meta
+  from training.common.run_meta import sampling_meta
+  from training.common.seq_inputs import drop_music
+  from training.run_config import RunConfig
   cfg = SeqConfig(feature_dim=5, pre_dim=8, d_model=16, n_heads=2, codebook_size=16, n_styles=2, style_dim=4,
                   attn_window=8)
   model = Danceba(cfg)
@@ -360,13 +362,13 @@ def test_music_dropout_of_some_feature_columns_keeps_the_others_and_is_written_f
   whole = drop_music(model, inputs, 0.3, np.random.default_rng(1))[0]
   assert torch.equal((whole == model.music_mean).all(-1).all(-1), is_mean)
   # The exported metadata tells the engine which columns its music-mean lanes replace.
-  args = argparse.Namespace(guidance=3.0, music_guidance=0.5, music_dropout=0.3, music_dropout_features=ranges)
-  assert sampling_meta(args) == {"guidance": 3.0, "music_guidance": 0.5, "music_guidance_features": [[0, 2], [3, 4]]}
-  assert sampling_meta(argparse.Namespace(guidance=3.0)) == {"guidance": 3.0}
+  config = RunConfig(guidance=3.0, music_guidance=0.5, music_dropout=0.3, music_dropout_features=tuple(ranges))
+  assert sampling_meta(config) == {"guidance": 3.0, "music_guidance": 0.5, "music_guidance_features": [[0, 2], [3, 4]]}
+  assert sampling_meta(RunConfig(guidance=3.0)) == {"guidance": 3.0}
 
 
 def test_music_dropout_1_reads_the_mean_and_validates_on_it():
-  from training.train_seq import drop_music, mean_music_tokens
+  from training.common.seq_inputs import drop_music, mean_music_tokens
   cfg = SeqConfig(feature_dim=5, pre_dim=8, d_model=16, n_heads=2, codebook_size=16, n_styles=2, style_dim=4,
                   attn_window=8)
   model = Danceba(cfg)
@@ -387,12 +389,13 @@ def test_music_dropout_1_reads_the_mean_and_validates_on_it():
   assert all(np.array_equal(t["music"], m) for t, m in zip(toks, before))  # the caller's tokens unchanged
   # The validation reads what the engine runs: the mean at music guidance 0 (in the dropped columns), the
   # song's music at any other weight.
-  import argparse
+  import dataclasses
 
-  from training.train_seq import as_the_engine_reads
-  args = argparse.Namespace(guidance=3.0, music_guidance=0.0, music_dropout=1.0, music_dropout_features=[(1, 3)])
-  for got, want in zip(as_the_engine_reads(args, model, toks), mean_music_tokens(model, toks, [(1, 3)])):
+  from training.common.seq_inputs import as_the_engine_reads
+  from training.run_config import RunConfig
+  config = RunConfig(guidance=3.0, music_guidance=0.0, music_dropout=1.0, music_dropout_features=((1, 3),))
+  for got, want in zip(as_the_engine_reads(config, model, toks), mean_music_tokens(model, toks, [(1, 3)])):
     assert np.array_equal(got["music"], want["music"])
-  args.music_guidance = 0.5
-  assert as_the_engine_reads(args, model, toks) is toks
+  config = dataclasses.replace(config, music_guidance=0.5)
+  assert as_the_engine_reads(config, model, toks) is toks
 

@@ -1,11 +1,12 @@
-"""Decoder-only VQ-VAE fine-tuning (training.train_vq_decoder): two steps on tiny random VQ-VAEs change only the
-decoder; the energy term is zero for a perfect decode and positive otherwise."""
+"""Decoder-only VQ-VAE fine-tuning (training.common.decoder_tuning, the vqdec and owndec stages): two steps on
+tiny random VQ-VAEs change only the decoder; the energy term is zero for a perfect decode and positive
+otherwise; the run directory's decoders are loaded only where they fit."""
 import numpy as np
 import torch
 
 from training.model import VQConfig
 from training.model.vqvae import PoseVQVAE
-from training.train_vq_decoder import channel_groups, energy_loss, finetune_decoder
+from training.common.decoder_tuning import channel_groups, energy_loss, finetune_decoder
 
 
 def _tiny(dim: int) -> PoseVQVAE:
@@ -49,7 +50,7 @@ def test_export_with_decoders_changes_only_the_decoders(tmp_path):
   from training.export import export_model, load_models, read_dncw
   from training.model import SeqConfig
   from training.model.danceba import Danceba
-  from training.train_vq_decoder import export_with_decoders
+  from training.experiments.vq_decoder import export_with_decoders
   torch.manual_seed(0)
   seq = Danceba(SeqConfig(feature_dim=6, pre_dim=8, d_model=16, n_heads=2, codebook_size=16, n_styles=2,
                           style_dim=4)).eval()
@@ -73,7 +74,7 @@ def test_export_with_decoders_changes_only_the_decoders(tmp_path):
 
 
 def test_load_vqs_prefers_the_fine_tuned_decoders(tmp_path):
-  from training.train import load_vqs
+  from training.common.run_dir import load_vqs
   for part, dim in (("upper", 45), ("lower", 31)):
     vq = _tiny(dim)
     torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict()}, tmp_path / f"vq_{part}.pt")
@@ -90,7 +91,7 @@ def test_load_vqs_prefers_the_fine_tuned_decoders(tmp_path):
 
 
 def test_step_codes_undo_the_engines_frame_warp():
-  from training.train_vq_decoder import step_codes
+  from training.common.decoder_tuning import step_codes
   rng = np.random.default_rng(3)
   up = rng.integers(0, 5, 200)       # few codes: equal consecutive steps are common
   low = rng.integers(0, 5, 200)
@@ -113,8 +114,8 @@ def _own_dances(tmp_path, n_codes: int, styles=("waltz", "rumba")):
 
 
 def test_own_codes_term_moves_each_style_toward_its_real_energy(tmp_path):
-  from training.train_data import STYLES
-  from training.train_vq_decoder import OwnCodes, energy_eps, load_own_codes
+  from training.common.clips import STYLES
+  from training.common.decoder_tuning import OwnCodes, energy_eps, load_own_codes
   vq = _tiny(45)
   for p in vq.parameters():
     p.requires_grad_(False)
@@ -152,8 +153,8 @@ def test_own_codes_term_moves_each_style_toward_its_real_energy(tmp_path):
 
 
 def test_finetune_with_own_codes_changes_only_the_decoder(tmp_path, monkeypatch):
-  from training import train_vq_decoder as T
-  from training.train_data import STYLES
+  from training.common import decoder_tuning as T
+  from training.common.clips import STYLES
   vq = _tiny(45)
   frozen = {k: v.clone() for k, v in vq.state_dict().items() if not k.startswith("decoder.")}
   long = (150, 200)  # at least one 32-step (128-frame) window per style
@@ -170,7 +171,7 @@ def test_finetune_with_own_codes_changes_only_the_decoder(tmp_path, monkeypatch)
 
 
 def test_load_vqs_takes_the_own_decoders_only_for_their_sequence_model(tmp_path):
-  from training.train import load_vqs, seq_digest
+  from training.common.run_dir import load_vqs, seq_digest
   for part, dim in (("upper", 45), ("lower", 31)):
     vq = _tiny(dim)
     torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict()}, tmp_path / f"vq_{part}.pt")
@@ -197,35 +198,35 @@ def test_load_vqs_takes_the_own_decoders_only_for_their_sequence_model(tmp_path)
 
 
 def test_own_decoder_is_redone_when_its_settings_change(tmp_path):
-  import argparse
+  import dataclasses
   import json
 
-  from training import train
+  from training.common import run_dir as rd
+  from training.run_config import RunConfig
   (tmp_path / "seq.pt").write_bytes(b"sequence model A")
   (tmp_path / "style_reference_bpm.json").write_text(json.dumps({"waltz": 87.0}))
   (tmp_path / "dance_period_beats.json").write_text(json.dumps({"waltz": 3}))
-  args = argparse.Namespace(tempo_ref=105.0, period_lock=8.0, period_lock_periods=[1, 2], bar_clock=False,
-                            style_period_lock={"waltz": 0.0}, period_lock_sharpness=10.0, guidance=3.0,
-                            own_seeds=[10, 11], own_iters=1000, own_weight={"upper": 1.0, "lower": 0.0},
-                            own_anchor=100.0,
-                            vq_energy_weight={"upper": 0.1, "lower": 0.3}, vq_dec_lr=1e-4)
-  report = {"seq_sha256": train.seq_digest(tmp_path), "settings": train.owndec_settings(args, tmp_path)}
+  config = RunConfig(tempo_ref=105.0, period_lock=8.0, period_lock_periods=(1, 2), bar_clock=False,
+                   style_period_lock={"waltz": 0.0}, period_lock_sharpness=10.0, guidance=3.0,
+                   own_seeds=(10, 11), own_iters=1000, own_weight={"upper": 1.0, "lower": 0.0}, own_anchor=100.0,
+                   vq_energy_weight={"upper": 0.1, "lower": 0.3}, vq_dec_lr=1e-4)
+  report = {"seq_sha256": rd.seq_digest(tmp_path), "settings": rd.owndec_settings(config, tmp_path)}
   (tmp_path / "owndec_report.json").write_text(json.dumps(report))
-  assert train.owndec_current(tmp_path, args) is not None
-  assert train.owndec_current(tmp_path) is not None  # without args: the sequence model alone
-  for name, value in (("guidance", 2.0), ("music_guidance", 0.5), ("period_lock", 4.0), ("own_seeds", [10]),
+  assert rd.owndec_current(tmp_path, config) is not None
+  assert rd.owndec_current(tmp_path) is not None  # without a config: the sequence model alone
+  for name, value in (("guidance", 2.0), ("music_guidance", 0.5), ("period_lock", 4.0), ("own_seeds", (10,)),
                       ("own_weight", {"upper": 0.3, "lower": 0.0}), ("own_weight", {"upper": 1.0, "lower": 0.5})):
-    changed = argparse.Namespace(**dict(vars(args), **{name: value}))
-    assert train.owndec_current(tmp_path, changed) is None, name
+    changed = dataclasses.replace(config, **{name: value})
+    assert rd.owndec_current(tmp_path, changed) is None, name
   (tmp_path / "seq.pt").write_bytes(b"sequence model B")
-  assert train.owndec_current(tmp_path, args) is None and train.owndec_current(tmp_path) is None
+  assert rd.owndec_current(tmp_path, config) is None and rd.owndec_current(tmp_path) is None
   # The dances' directory: stamped beside the dances (which load_own_codes still reads), emptied when the
   # sampling settings change, kept when only the fine-tuning's do.
-  from training.train_vq_decoder import load_own_codes
-  dances = train.own_dances_dir(args, tmp_path)
+  from training.common.decoder_tuning import load_own_codes
+  dances = rd.own_dances_dir(config, tmp_path)
   _own_dances(dances, 16)
-  assert len(load_own_codes(str(train.own_dances_dir(args, tmp_path)), "upper")) == 2
-  other = argparse.Namespace(**dict(vars(args), own_weight={"upper": 0.3, "lower": 0.0}))
-  assert len(load_own_codes(str(train.own_dances_dir(other, tmp_path)), "upper")) == 2
-  train.own_dances_dir(argparse.Namespace(**dict(vars(args), guidance=2.0)), tmp_path)
+  assert len(load_own_codes(str(rd.own_dances_dir(config, tmp_path)), "upper")) == 2
+  other = dataclasses.replace(config, own_weight={"upper": 0.3, "lower": 0.0})
+  assert len(load_own_codes(str(rd.own_dances_dir(other, tmp_path)), "upper")) == 2
+  rd.own_dances_dir(dataclasses.replace(config, guidance=2.0), tmp_path)
   assert not list(dances.glob("*.json"))

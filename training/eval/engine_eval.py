@@ -15,12 +15,12 @@ from __future__ import annotations
 import argparse
 import json
 import pathlib
-import subprocess
 
 import numpy as np
 
-from training import train_data as td
-from training.eval.engine_tempo import dance_generate_bin
+from training import tools
+from training.common import clips as td
+from training.eval import evaluate, metrics, render
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 
@@ -31,24 +31,49 @@ def generate_song(model: str, mid: str, out: pathlib.Path, seed: int, temperatur
   """dance-generate on the song of motion `mid`, in its own style unless `style` is given; guidance and
   top_p None = the model's defaults."""
   z = np.load(td.MOTION_CACHE / f"{mid}.npz")
-  cmd = [str(dance_generate_bin()), "--audio", str(z["audio_path"]), "--out", str(out), "--model", model,
-         "--seed", str(seed), "--style", style or str(z["style"]), "--temperature", str(temperature), "--quiet"]
-  if guidance is not None:
-    cmd += ["--guidance", str(guidance)]
-  if top_p is not None:
-    cmd += ["--top-p", str(top_p)]
-  if period_lock is not None:  # None: the model's default
-    cmd += ["--period-lock", str(period_lock)]
-  proc = subprocess.run(cmd, capture_output=True, text=True)
-  if proc.returncode != 0:
-    raise RuntimeError(f"dance-generate failed on {mid}: {proc.stderr.strip()}")
-  return out
+  return tools.dance_generate(model, str(z["audio_path"]), out, seed=seed, temperature=temperature,
+                              style=style or str(z["style"]), top_p=top_p, guidance=guidance,
+                              period_lock=period_lock)
+
+
+def evaluate_model(model: str, out_dir, seed: int = 0, temperature: float = 1.0, guidance: float | None = None,
+                   top_p: float | None = None, period_lock: float | None = None, songs: set[str] | None = None,
+                   fill_from=None) -> dict:
+  """The metric table of `model`'s engine dances (module docstring), written into out_dir; returns its rows.
+  songs: the validation songs to generate (default: all), the others read from fill_from's draw of `seed`."""
+  ids = td.tang_ids(td.load_split()["validation"])
+  songs = set(ids) if songs is None else songs
+  td.ensure_motion_cache()  # the real dances' audio paths and styles (a fresh checkout has no cache yet)
+  out = pathlib.Path(out_dir)
+  (out / "dances").mkdir(parents=True, exist_ok=True)
+  dances = []
+  for mid in ids:
+    z = np.load(td.MOTION_CACHE / f"{mid}.npz")
+    if mid in songs:
+      path = generate_song(model, mid, out / "dances" / f"{mid}.json", seed, temperature, period_lock,
+                           guidance=guidance, top_p=top_p)
+    else:
+      path = pathlib.Path(fill_from) / f"s{seed}" / "dances" / f"{mid}.json"
+    d = evaluate.load_dance(path, audio=str(z["audio_path"]))  # audio_offset_s: the song time of the first frame
+    dances.append(evaluate.Dance(mid, d.positions, d.fps, d.audio_path, d.audio_offset_s, str(z["style"])))
+  ev = evaluate.Evaluator.default()
+  rows = {"model (engine)": ev.evaluate(dances),
+          # The same dances cut to the real dances' song spans: the real row's segments, song for song.
+          "model (engine), real spans": ev.evaluate(evaluate.on_real_spans(dances, ev.validation))}
+  rows.update(ev.baselines())
+  table = evaluate.markdown_table(rows)
+  (out / "metrics.md").write_text(table)
+  (out / "metrics.json").write_text(json.dumps(rows, indent=1))
+  print(table)
+  for d in dances[:2] + [x for x in dances if x.name == "tang_DANCE_W_3"]:
+    render.render_strip(d.positions, str(out / f"strip_{d.name}.png"), start_s=20.0)
+    speed = metrics.joint_speed(d.positions, d.fps)
+    render.render_beats(speed, metrics.motion_beats(d.positions, d.fps), d.beats(), str(out / f"beats_{d.name}.png"),
+                        window_s=(20.0, 32.0), title=f"{d.name} (engine, seed {seed})")
+  return rows
 
 
 def main(argv=None) -> None:
-  from training.eval.evaluate import Dance, Evaluator, load_dance, markdown_table, on_real_spans
-  from training.eval.metrics import joint_speed, motion_beats
-  from training.eval.render import render_beats, render_strip
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   ap.add_argument("--model", default=str(REPO / "models" / "default.dncw"))
   ap.add_argument("--out-dir", required=True)
@@ -69,35 +94,12 @@ def main(argv=None) -> None:
     ap.error(f"--songs: not validation songs: {', '.join(sorted(songs - set(ids)))}")
   if (args.songs is None) != (args.fill_from is None):
     ap.error("--songs and --fill-from go together")
-  td.ensure_motion_cache()  # the real dances' audio paths and styles (a fresh checkout has no cache yet)
-  out = pathlib.Path(args.out_dir)
-  (out / "dances").mkdir(parents=True, exist_ok=True)
-  dances = []
-  for mid in ids:
-    z = np.load(td.MOTION_CACHE / f"{mid}.npz")
-    if mid in songs:
-      path = generate_song(args.model, mid, out / "dances" / f"{mid}.json", args.seed, args.temperature,
-                           args.period_lock, guidance=args.guidance, top_p=args.top_p)
-    else:
-      path = pathlib.Path(args.fill_from) / f"s{args.seed}" / "dances" / f"{mid}.json"
-      if not path.exists():
-        ap.error(f"--fill-from: {path} does not exist")
-    d = load_dance(path, audio=str(z["audio_path"]))  # audio_offset_s: the song time of the first frame
-    dances.append(Dance(mid, d.positions, d.fps, d.audio_path, d.audio_offset_s, str(z["style"])))
-  ev = Evaluator.default()
-  rows = {"model (engine)": ev.evaluate(dances),
-          # The same dances cut to the real dances' song spans: the real row's segments, song for song.
-          "model (engine), real spans": ev.evaluate(on_real_spans(dances, ev.validation))}
-  rows.update(ev.baselines())
-  table = markdown_table(rows)
-  (out / "metrics.md").write_text(table)
-  (out / "metrics.json").write_text(json.dumps(rows, indent=1))
-  print(table)
-  for d in dances[:2] + [x for x in dances if x.name == "tang_DANCE_W_3"]:
-    render_strip(d.positions, str(out / f"strip_{d.name}.png"), start_s=20.0)
-    speed = joint_speed(d.positions, d.fps)
-    render_beats(speed, motion_beats(d.positions, d.fps), d.beats(), str(out / f"beats_{d.name}.png"),
-                 window_s=(20.0, 32.0), title=f"{d.name} (engine, seed {args.seed})")
+  for mid in sorted(set(ids) - songs):
+    path = pathlib.Path(args.fill_from) / f"s{args.seed}" / "dances" / f"{mid}.json"
+    if not path.exists():
+      ap.error(f"--fill-from: {path} does not exist")
+  evaluate_model(args.model, args.out_dir, args.seed, args.temperature, args.guidance, args.top_p,
+                 args.period_lock, songs, args.fill_from)
 
 
 if __name__ == "__main__":

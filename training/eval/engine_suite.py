@@ -32,8 +32,8 @@ import sys
 
 import numpy as np
 
-from training import train_data as td
-from training.eval import music
+from training.common import clips as td
+from training.eval import evaluate, music
 from training.eval.engine_tempo import bootstrap_se
 
 METRICS = ("fid_k", "fid_g", "div_k", "div_g", "pfc", "jitter")
@@ -122,20 +122,19 @@ def span_scores(out: pathlib.Path, draws, fill_from: pathlib.Path | None = None)
   (evaluate.on_real_spans: the real row's segments, song for song), beside the real row's; with fill_from
   (a --songs suite) the songs a draw did not generate come from fill_from's draw of the same seed. None when
   a draw has no dance files (a summary of metrics.json files alone) or lacks a validation song."""
-  from training.eval.evaluate import Evaluator, load_dance, on_real_spans
   dirs = {s: out / f"s{s}" / "dances" for s in draws}
   if not dirs or any(not d.is_dir() or not any(d.glob("*.json")) for d in dirs.values()):
     return None
-  ev = Evaluator.default()
+  ev = evaluate.Evaluator.default()
   names = {d.name for d in ev.validation}
   scores = {}
   for s, d in dirs.items():
     paths = {p.stem: p for p in (fill_from / f"s{s}" / "dances").glob("*.json")} if fill_from else {}
     paths.update({p.stem: p for p in d.glob("*.json")})
-    dances = [load_dance(p) for _, p in sorted(paths.items())]  # named by their files' stems
+    dances = [evaluate.load_dance(p) for _, p in sorted(paths.items())]  # named by their files' stems
     if {x.name for x in dances} != names:
       return None
-    scores[s] = ev.fid_div(on_real_spans(dances, ev.validation))
+    scores[s] = ev.fid_div(evaluate.on_real_spans(dances, ev.validation))
   return {"draws": scores, "mean": {k: float(np.mean([v[k] for v in scores.values()])) for k in SPAN_METRICS},
           "real": ev.fid_div(ev.validation)}
 

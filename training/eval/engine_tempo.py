@@ -22,22 +22,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import pathlib
 import subprocess
 import tempfile
 
 import numpy as np
 
-from training import train_data as td
+from training import tools
+from training.common import clips as td
 from training.eval.tempo import dominant_period, perfect_follower_ratio, pooled_tempo_following, tempo_following
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
-
-
-def dance_generate_bin() -> pathlib.Path:
-  build = pathlib.Path(os.environ.get("DANCE_BUILD_DIR", REPO / "build"))
-  return build / "bin" / "dance-generate"
 
 
 def generate(model: str, audio: str, seed: int, style: str, workdir: pathlib.Path,
@@ -48,16 +43,8 @@ def generate(model: str, audio: str, seed: int, style: str, workdir: pathlib.Pat
   out = workdir / (pathlib.Path(audio).stem + f"_s{seed}.json")
   if out.is_file():  # already danced in this run (same model and settings: the workdir is per run)
     return np.asarray(json.loads(out.read_text())["positions"], dtype=np.float64)
-  cmd = [str(dance_generate_bin()), "--audio", audio, "--out", str(out), "--model", model, "--seed", str(seed),
-         "--temperature", str(temperature), "--quiet"]
-  for flag, value in (("--top-p", top_p), ("--guidance", guidance), ("--period-lock", period_lock)):
-    if value is not None:  # None: the model's default
-      cmd += [flag, str(value)]
-  if style:
-    cmd += ["--style", style]
-  proc = subprocess.run(cmd, capture_output=True, text=True)
-  if proc.returncode != 0:
-    raise RuntimeError(f"dance-generate failed: {proc.stderr.strip()}")
+  tools.dance_generate(model, audio, out, seed=seed, temperature=temperature, style=style, top_p=top_p,
+                       guidance=guidance, period_lock=period_lock)
   return np.asarray(json.loads(out.read_text())["positions"], dtype=np.float64)
 
 
@@ -79,6 +66,73 @@ def bootstrap_se(values, n_boot: int = 2000) -> float | None:
   return float(np.std(v[rng.integers(0, len(v), size=(n_boot, len(v)))].mean(axis=1)))
 
 
+def measure(model: str, songs: str = "validation", seeds=(0, 1), seconds: float = 60.0, temperature: float = 1.0,
+            top_p: float | None = None, guidance: float | None = None, period_lock: float | None = None) -> dict:
+  """The tempo-following report of `model` (module docstring): songs "validation", "train" or comma-separated
+  motion ids; top_p, guidance and period_lock None = the model's defaults. Prints a line per run and song."""
+  seeds = [int(s) for s in seeds]
+  td.ensure_motion_cache()  # the songs' audio paths and styles (a fresh checkout has no cache yet)
+  if len(seeds) < 3:
+    print("engine_tempo: fewer than 3 seeds: the ideal-follower calibration is skipped", flush=True)
+  split = td.load_split()
+  ids = td.tang_ids(split[songs]) if songs in ("validation", "train") else songs.split(",")
+  rows, pooled = [], []
+  with tempfile.TemporaryDirectory() as tmp:
+    work = pathlib.Path(tmp)
+    for mid in ids:
+      z = np.load(td.MOTION_CACHE / f"{mid}.npz")
+      excerpt = song_excerpt(str(z["audio_path"]), seconds, work / f"{mid}.wav")
+      for seed in seeds:
+        gen = lambda path, seed=seed, style=str(z["style"]): generate(  # noqa: E731
+            model, path, seed, style, work, temperature, top_p, guidance, period_lock)
+        r = tempo_following(gen, excerpt, work)
+        r.update(id=mid, seed=seed)
+        rows.append(r)
+        print(f"{mid} seed {seed}: ratio {r['ratio']:.3f}  periods {r['base_period_s']:.3f} -> "
+              f"{['%.3f' % p for p in r['periods_s']]}", flush=True)
+      # The same songs with the seeds pooled: the mean speed autocorrelation of all seeds' dances.
+      gen_many = lambda path, style=str(z["style"]): [generate(  # noqa: E731
+          model, path, seed, style, work, temperature, top_p, guidance, period_lock) for seed in seeds]
+      r = pooled_tempo_following(gen_many, excerpt, work)
+      base = gen_many(excerpt)
+      if len(base) > 2:
+        n = len(base)
+        cal = [perfect_follower_ratio(base[i], [base[(i + 1) % n], base[(i + 2) % n]]) for i in range(n)]
+        periods = np.array([dominant_period(d) for d in base])
+        r.update(perfect_follower_ratios=cal, base_period_log_std=float(np.nanstd(np.log(periods))))
+      r.update(id=mid)
+      pooled.append(r)
+      print(f"{mid} pooled over seeds {seeds}: ratio {r['ratio']:.3f}  periods {r['base_period_s']:.3f} -> "
+            f"{['%.3f' % p for p in r['periods_s']]}", flush=True)
+  ratios = [r["ratio"] for r in rows if np.isfinite(r["ratio"])]
+  pooled_ratios = [r["ratio"] for r in pooled if np.isfinite(r["ratio"])]
+  cal = [c for r in pooled for c in r.get("perfect_follower_ratios", []) if np.isfinite(c)]
+  report = {"model": model, "seconds": seconds, "temperature": temperature,
+            "top_p": top_p, "guidance": guidance, "period_lock": period_lock, "seeds": seeds,
+            "mean_ratio": float(np.mean(ratios)) if ratios else None,
+            "mean_ratio_se": bootstrap_se(ratios),
+            "median_ratio": float(np.median(ratios)) if ratios else None, "runs": len(rows),
+            "finite_runs": len(ratios), "rows": rows,
+            "pooled_mean_ratio": float(np.mean(pooled_ratios)) if pooled_ratios else None,
+            "pooled_finite_songs": len(pooled_ratios), "pooled_rows": pooled,
+            "perfect_follower_mean_ratio": float(np.mean(cal)) if cal else None,
+            "perfect_follower_median_ratio": float(np.median(cal)) if cal else None}
+  print(f"per run: mean ratio {report['mean_ratio']} (bootstrap s.e. {report['mean_ratio_se']}), median "
+        f"{report['median_ratio']} over "
+        f"{len(ratios)}/{len(rows)} runs; seeds pooled: mean ratio {report['pooled_mean_ratio']} over "
+        f"{len(pooled_ratios)}/{len(pooled)} songs; an ideal follower with this model's draw-to-draw spread: "
+        f"mean {report['perfect_follower_mean_ratio']}, median {report['perfect_follower_median_ratio']}")
+  return report
+
+
+def write_report(report: dict, path) -> None:
+  """`report` as strict JSON (NaN as null)."""
+  clean = lambda v: (None if isinstance(v, float) and not np.isfinite(v) else  # noqa: E731
+                     [clean(x) for x in v] if isinstance(v, list) else
+                     {k: clean(x) for k, x in v.items()} if isinstance(v, dict) else v)
+  pathlib.Path(path).write_text(json.dumps(clean(report), indent=1, allow_nan=False))
+
+
 def main(argv=None) -> None:
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   ap.add_argument("--model", default=str(REPO / "models" / "default.dncw"))
@@ -93,62 +147,10 @@ def main(argv=None) -> None:
                   help="dance-generate --period-lock (default: the model's; 0 = off)")
   ap.add_argument("--out", default=None)
   args = ap.parse_args(argv)
-  td.ensure_motion_cache()  # the songs' audio paths and styles (a fresh checkout has no cache yet)
-  if len(args.seeds) < 3:
-    print("engine_tempo: fewer than 3 seeds: the ideal-follower calibration is skipped", flush=True)
-  split = td.load_split()
-  ids = td.tang_ids(split[args.songs]) if args.songs in ("validation", "train") else args.songs.split(",")
-  rows, pooled = [], []
-  with tempfile.TemporaryDirectory() as tmp:
-    work = pathlib.Path(tmp)
-    for mid in ids:
-      z = np.load(td.MOTION_CACHE / f"{mid}.npz")
-      excerpt = song_excerpt(str(z["audio_path"]), args.seconds, work / f"{mid}.wav")
-      for seed in args.seeds:
-        gen = lambda path, seed=seed, style=str(z["style"]): generate(  # noqa: E731
-            args.model, path, seed, style, work, args.temperature, args.top_p, args.guidance, args.period_lock)
-        r = tempo_following(gen, excerpt, work)
-        r.update(id=mid, seed=seed)
-        rows.append(r)
-        print(f"{mid} seed {seed}: ratio {r['ratio']:.3f}  periods {r['base_period_s']:.3f} -> "
-              f"{['%.3f' % p for p in r['periods_s']]}", flush=True)
-      # The same songs with the seeds pooled: the mean speed autocorrelation of all seeds' dances.
-      gen_many = lambda path, style=str(z["style"]): [generate(  # noqa: E731
-          args.model, path, seed, style, work, args.temperature, args.top_p, args.guidance, args.period_lock) for seed in args.seeds]
-      r = pooled_tempo_following(gen_many, excerpt, work)
-      base = gen_many(excerpt)
-      if len(base) > 2:
-        n = len(base)
-        cal = [perfect_follower_ratio(base[i], [base[(i + 1) % n], base[(i + 2) % n]]) for i in range(n)]
-        periods = np.array([dominant_period(d) for d in base])
-        r.update(perfect_follower_ratios=cal, base_period_log_std=float(np.nanstd(np.log(periods))))
-      r.update(id=mid)
-      pooled.append(r)
-      print(f"{mid} pooled over seeds {args.seeds}: ratio {r['ratio']:.3f}  periods {r['base_period_s']:.3f} -> "
-            f"{['%.3f' % p for p in r['periods_s']]}", flush=True)
-  ratios = [r["ratio"] for r in rows if np.isfinite(r["ratio"])]
-  pooled_ratios = [r["ratio"] for r in pooled if np.isfinite(r["ratio"])]
-  cal = [c for r in pooled for c in r.get("perfect_follower_ratios", []) if np.isfinite(c)]
-  report = {"model": args.model, "seconds": args.seconds, "temperature": args.temperature,
-            "top_p": args.top_p, "guidance": args.guidance, "period_lock": args.period_lock, "seeds": args.seeds,
-            "mean_ratio": float(np.mean(ratios)) if ratios else None,
-            "mean_ratio_se": bootstrap_se(ratios),
-            "median_ratio": float(np.median(ratios)) if ratios else None, "runs": len(rows),
-            "finite_runs": len(ratios), "rows": rows,
-            "pooled_mean_ratio": float(np.mean(pooled_ratios)) if pooled_ratios else None,
-            "pooled_finite_songs": len(pooled_ratios), "pooled_rows": pooled,
-            "perfect_follower_mean_ratio": float(np.mean(cal)) if cal else None,
-            "perfect_follower_median_ratio": float(np.median(cal)) if cal else None}
-  print(f"per run: mean ratio {report['mean_ratio']} (bootstrap s.e. {report['mean_ratio_se']}), median "
-        f"{report['median_ratio']} over "
-        f"{len(ratios)}/{len(rows)} runs; seeds pooled: mean ratio {report['pooled_mean_ratio']} over "
-        f"{len(pooled_ratios)}/{len(pooled)} songs; an ideal follower with this model's draw-to-draw spread: "
-        f"mean {report['perfect_follower_mean_ratio']}, median {report['perfect_follower_median_ratio']}")
+  report = measure(args.model, args.songs, args.seeds, args.seconds, args.temperature, args.top_p, args.guidance,
+                   args.period_lock)
   if args.out:
-    clean = lambda v: (None if isinstance(v, float) and not np.isfinite(v) else  # noqa: E731
-                       [clean(x) for x in v] if isinstance(v, list) else
-                       {k: clean(x) for k, x in v.items()} if isinstance(v, dict) else v)
-    pathlib.Path(args.out).write_text(json.dumps(clean(report), indent=1, allow_nan=False))
+    write_report(report, args.out)
 
 
 if __name__ == "__main__":

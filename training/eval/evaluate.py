@@ -19,7 +19,8 @@ import numpy as np
 
 from training.data import prepare
 from training.data import skeleton as sk
-from training.eval import features, metrics, music
+from training.eval import features, metrics, music, tempo
+from training.eval.data_checks import beat_phases
 
 METRIC_KEYS = ("fid_k", "fid_g", "div_k", "div_g", "bas", "bas_chance", "lock_r", "lock_chance",
                "period_dev", "pfc", "jitter", "turn_rate", "spin", "foot_skate", "contact", "bone_err_mm",
@@ -125,8 +126,6 @@ def beat_lock(dance: Dance, beats: np.ndarray) -> dict:
   period_dev: distance of the dominant motion period, in beats, from the nearest of SIMPLE_MULTIPLES,
     relative to that multiple (0 = on the grid; a period unrelated to the beat averages ~0.1).
   """
-  from training.eval import tempo
-  from training.eval.data_checks import beat_phases
   dur = len(dance.positions) / dance.fps
   b = beats[(beats >= 0) & (beats < dur)]
   if len(b) < 4:

@@ -17,6 +17,7 @@ from scipy import linalg
 from scipy.ndimage import gaussian_filter1d
 from scipy.signal import argrelextrema
 
+from training.data.representation import facing_yaw
 from training.data.skeleton import FOOT_JOINTS, J
 
 BAS_SIGMA_S = 0.1           # Gaussian tolerance of BAS (3 frames at 30 fps, Bailando's 3 frames)
@@ -166,7 +167,6 @@ def bone_length_error(positions: np.ndarray, parents: np.ndarray, lengths: np.nd
 
 def turn_rate(positions: np.ndarray, fps: float = 30.0) -> float:
   """Mean absolute turning speed of the body's facing (hips and shoulders), rad/s."""
-  from training.data.representation import facing_yaw
   yaw = np.unwrap(facing_yaw(np.asarray(positions, dtype=np.float64)))
   if len(yaw) < 2:
     return 0.0

@@ -26,6 +26,8 @@ import sys
 
 import numpy as np
 
+from training.features.extract import extract_features
+
 BEAT_CACHE = pathlib.Path(__file__).resolve().parents[1] / "cache" / "beats"
 
 
@@ -84,7 +86,6 @@ def warm_librosa() -> bool:
 
 
 def engine_info(audio_path: str) -> dict:
-  from training.features.extract import extract_features
   s = extract_features(audio_path)["summary"]
   return {"tempo_bpm": float(s["tempo_bpm"]), "beats_s": list(s["beats_s"]),
           "duration_s": float(s["duration_s"]), "source": "engine"}

@@ -6,7 +6,7 @@ The C++ extractor is the only feature implementation; this module never computes
     feats = extract_features("song.ogg")      # dict: features (T, 108), pre (T, 128), pre_input (T, 4),
                                               #       summary (dict from --summary)
 
-The CLI is looked up in $DANCE_BUILD_DIR/bin, then /work/main/build/bin, then the repository's build/bin.
+The CLI is run by training.tools (found in $DANCE_BUILD_DIR/bin, else the repository's build/bin).
 Results are cached under $DANCE_FEATURE_CACHE (default ~/.cache/dance-features), keyed by the audio file's
 content hash and the CLI binary's hash, so a rebuilt extractor never serves stale arrays.
 
@@ -18,35 +18,25 @@ import argparse
 import hashlib
 import json
 import os
-import subprocess
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
+from training import tools
+
 FEATURE_DIMS = 108
 PRE_DIMS = 128
 PRE_CHANNELS = 4
 FPS = 30.0
 
 
-class FeatureToolMissing(RuntimeError):
-    """The dance-features binary was not found (build the project first)."""
+FeatureToolMissing = tools.ToolMissing  # the dance-features binary was not found (build the project first)
 
 
 def find_cli() -> Path:
-    candidates = []
-    if os.environ.get("DANCE_BUILD_DIR"):
-        candidates.append(Path(os.environ["DANCE_BUILD_DIR"]) / "bin" / "dance-features")
-    candidates += [Path("/work/main/build/bin/dance-features"), REPO_ROOT / "build" / "bin" / "dance-features"]
-    for c in candidates:
-        if c.is_file() and os.access(c, os.X_OK):
-            return c
-    raise FeatureToolMissing(
-        "dance-features not found (looked in: " + ", ".join(str(c) for c in candidates)
-        + "); build it with `cmake --preset release && cmake --build --preset release --target dance-features`"
-        " or set DANCE_BUILD_DIR")
+    """The dance-features binary (training.tools.require), or FeatureToolMissing."""
+    return tools.require("dance-features")
 
 
 def _hash_file(path: Path) -> str:
@@ -60,17 +50,12 @@ def _hash_file(path: Path) -> str:
 def run_cli(audio: str | os.PathLike, out_dir: str | os.PathLike, chunk_samples: int | None = None,
             cli: Path | None = None) -> dict:
     """Runs the CLI once, writing features.npy, pre.npy, pre_input.npy into out_dir; returns the summary."""
-    cli = cli or find_cli()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    cmd = [str(cli), str(audio), "--out", str(out_dir / "features.npy"), "--pre", str(out_dir / "pre.npy"),
-           "--pre-input", str(out_dir / "pre_input.npy"), "--summary"]
-    if chunk_samples is not None:
-        cmd += ["--chunk-samples", str(int(chunk_samples))]
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise RuntimeError(f"dance-features failed on {audio}: {proc.stderr.strip()}")
-    summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    stdout = tools.dance_features(audio, out=out_dir / "features.npy", pre=out_dir / "pre.npy",
+                                  pre_input=out_dir / "pre_input.npy", summary=True, chunk_samples=chunk_samples,
+                                  cli=cli)
+    summary = json.loads(stdout.strip().splitlines()[-1])
     (out_dir / "summary.json").write_text(json.dumps(summary))
     return summary
 
@@ -125,14 +110,8 @@ def extract_clock(audio: str | os.PathLike, reference_bpm: float,
     path = out_dir / f"{name}.npy"
     if not path.is_file():
         tmp = out_dir / f".clock_{os.getpid()}.npy"
-        cmd = [str(cli), str(audio), "--clock", str(tmp), "--tempo-ref", f"{reference_bpm:g}"]
-        if bar_beats > 0:
-            cmd += ["--bar-beats", str(int(bar_beats))]
-        if fold_tempo:
-            cmd += ["--fold-tempo"]
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise RuntimeError(f"dance-features --clock failed on {audio}: {proc.stderr.strip()}")
+        tools.dance_features(audio, clock=tmp, tempo_ref=reference_bpm, bar_beats=bar_beats, fold_tempo=fold_tempo,
+                             cli=cli)
         tmp.replace(path)
     return np.load(path)
 

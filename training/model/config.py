@@ -73,9 +73,9 @@ class VQConfig:
   n_res: int = 2                  # residual blocks per resolution
   ema_decay: float = 0.99
   commit_weight: float = 0.02
-  path_weight: float = 0.0        # lower body: weight of the integrated root path/heading loss (train_vq)
-  vel_weight: float = 1.0         # weight of the velocity term of the reconstruction loss (train_vq)
-  acc_weight: float = 1.0         # weight of the acceleration term (train_vq)
+  path_weight: float = 0.0        # lower body: weight of the integrated root path/heading loss (common.vq_training)
+  vel_weight: float = 1.0         # weight of the velocity term of the reconstruction loss (common.vq_training)
+  acc_weight: float = 1.0         # weight of the acceleration term (common.vq_training)
 
   def to_dict(self) -> dict:
     return dataclasses.asdict(self)

@@ -1,10 +1,10 @@
 """Filtered self-training data: the sequence model's own free-running dances on its training songs, cut into
 10-s segments, scored against the real dances of the song's style, the best kept as extra training clips.
 
-    /usr/bin/python3 -m training.self_rollouts --model M.dncw --tokens RUN/tokens_train_warp_....pt \
+    /usr/bin/python3 -m training.experiments.self_rollouts --model M.dncw --tokens RUN/tokens_train_warp_....pt \
         --out RUN/self_tokens.pt [--draws 8] [--keep 0.4] [--guidance 3] [--seed 0]
 
-Why (docs/training.md, "Filtered self-training"): given the real history of an unheard song the model
+Why (docs/research-log.md, "Filtered self-training"): given the real history of an unheard song the model
 continues it nearly as the real dancer (teacher-forced argmax FID at the VQ ceiling), but on its own history it
 drifts. Its training only ever showed it real histories. Here it is shown its own histories, and the
 continuations it is taught are its own draws too, but only the segments that look most like real dancing of
@@ -16,7 +16,7 @@ divided by the root of its dimension and the two summed; --reward song: the same
 real dance over the same song time (the continuations that, from the model's own history, land where the real
 dancer was). Per style, the segments scoring below the `keep` quantile of that style's draws
 are kept; runs of consecutive kept segments of a draw become clips in the token format of
-train_seq.build_tokens (the song's music and PRE over those steps, the draw's codes), marked "own_draw", with
+tokens.build_tokens (the song's music and PRE over those steps, the draw's codes), marked "own_draw", with
 the id "self:<song>:<draw>:<first segment>". train.py --self-tokens adds them to the training clips.
 """
 from __future__ import annotations
@@ -27,12 +27,12 @@ import json
 import numpy as np
 import torch
 
-from training import train_data as td
+from training.common import clips as td
 from training.data import skeleton as sk
 from training.data.sources import TANG_STYLES
 from training.eval import features
 from training.eval.evaluate import Evaluator, segment_table
-from training.eval.free_run import decode_codes, free_running_draws
+from training.experiments.free_run import decode_codes, free_running_draws
 from training.export import load_models
 
 SEGMENT_STEPS = int(features.SEGMENT_SECONDS * 30) // 4  # 75 code steps per 10-s segment

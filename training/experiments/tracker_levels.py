@@ -11,7 +11,7 @@ window where the stretched version sits on another octave than the original (unf
 the clock agrees, the beat and bar phases of the two versions do not, so a dance cannot scale with the
 music there. The first window (lock-in) is not scored.
 
-  /usr/bin/python3 -m training.eval.tracker_levels [--songs all|train|validation|ID,...] [--out r.json]
+  /usr/bin/python3 -m training.experiments.tracker_levels [--songs all|train|validation|ID,...] [--out r.json]
 
 Needs `dance-features` (DANCE_BUILD_DIR, default build/) and sox.
 """
@@ -20,15 +20,14 @@ from __future__ import annotations
 import argparse
 import json
 import pathlib
-import subprocess
 import tempfile
 
 import numpy as np
 
-from training import train_data as td
+from training import tools
+from training.common import clips as td
 from training.eval.engine_tempo import song_excerpt
 from training.eval.music import stretch_audio
-from training.features.extract import find_cli
 
 FACTORS = (0.85, 1.15)
 WINDOW_S = 10.0
@@ -74,7 +73,7 @@ def main(argv=None) -> None:
   else:
     ids = args.songs.split(",")
   windows = int(args.seconds // WINDOW_S)
-  cli = find_cli()
+  cli = tools.require("dance-features")
   rows = []
   with tempfile.TemporaryDirectory() as tmp:
     work = pathlib.Path(tmp)
@@ -85,7 +84,7 @@ def main(argv=None) -> None:
       for f in (1.0,) + FACTORS:
         wav = excerpt if f == 1.0 else stretch_audio(excerpt, f, work / f"{mid}_x{f}.wav")
         npy = work / f"{mid}_x{f}.npy"
-        subprocess.run([str(cli), str(wav), "--out", str(npy)], check=True, capture_output=True)
+        tools.dance_features(wav, out=npy, cli=cli)
         tempi[f] = window_tempi(120.0 * 2.0 ** np.load(npy)[:, 104].astype(np.float64), f, windows)
       errs = [e for f in FACTORS for e in level_errors(tempi[1.0], tempi[f], f)]
       off = int(np.sum(np.abs(errs) > 0.05))

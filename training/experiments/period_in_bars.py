@@ -1,13 +1,13 @@
 """The dominant period of the generated dances in bars of their music, beside the real dancer's.
 
 Reads `training.eval.engine_tempo` reports (the base period of every run on the original music) and a
-`training.eval.tracker_levels` report (the song's tracked tempo, windows 2-6 of the original), folds the
+`training.experiments.tracker_levels` report (the song's tracked tempo, windows 2-6 of the original), folds the
 tempo into the style's reference octave as the tempo clock does, and prints, per validation song, the bar
 length (waltz 3 beats, the others 4), the real dance's dominant period in bars (first 60 s) and every run's.
 A dance locked to the music's bar would sit at one value (1 bar for the waltzes here, 1/2 bar for cha-cha
 and rumba) in every run.
 
-  /usr/bin/python3 -m training.eval.period_in_bars --tempo A.json [B.json ...] --levels LEVELS.json \\
+  /usr/bin/python3 -m training.experiments.period_in_bars --tempo A.json [B.json ...] --levels LEVELS.json \\
       --refs RUN/style_reference_bpm.json
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ import json
 
 import numpy as np
 
-from training import train_data as td
+from training.common import clips as td
 from training.eval.tempo import dominant_period
 
 def bar_seconds(tempo_bpm: float, reference_bpm: float, style: str) -> float:

@@ -17,7 +17,7 @@ import pytest
 librosa = pytest.importorskip("librosa", reason="librosa is only in the project venv (.venv)")
 pytest.importorskip("mido", reason="python3-mido is needed to read notes.mid tempo maps")
 
-from training.features.librosa_compare import compare_song, compare_steady_tone, find_songs  # noqa: E402
+from training.experiments.librosa_compare import compare_song, compare_steady_tone, find_songs  # noqa: E402
 
 
 @pytest.fixture(scope="module")

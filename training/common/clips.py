@@ -1,5 +1,7 @@
-"""Training data for the pose VQ-VAEs and the sequence model, built from the data engineer's motion cache
-and the engine's feature extractor (training/features), with tempo augmentation.
+"""The training clips: paired dances (motion and music) for the pose VQ-VAEs and the sequence model, built
+from the data engineer's motion cache (training.data.prepare) and the engine's feature extractor
+(training.features.extract), with tempo augmentation and the engine's tempo-normalised timeline. Also the
+split (training/split.json) and the style rows of a run.
 
 Tempo augmentation: music and motion are time-stretched together. The audio with `sox tempo` (pitch kept)
 before feature extraction (training.eval.music.stretch_audio; cached per factor), the motion by linear
@@ -17,14 +19,15 @@ import pathlib
 
 import numpy as np
 
+from training.data import prepare
 from training.data import representation as rep
 from training.data.aistpp import AIST_GENRES
 from training.data.skeleton import mirror_positions
 from training.eval.music import stretch_audio
-from training.eval.tempo import time_stretch_motion
+from training.eval.tempo import dominant_period, time_stretch_motion
 from training.features.extract import extract_clock, extract_features
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+REPO = pathlib.Path(__file__).resolve().parents[2]
 MOTION_CACHE = REPO / "training" / "cache" / "motion"
 STRETCH_CACHE = REPO / "training" / "cache" / "stretched_audio"
 BAR_PHASE_COS = 105  # feature index of bar_phase (cos, sin): docs/features.md
@@ -84,7 +87,6 @@ def load_split() -> dict:
 def ensure_motion_cache() -> None:
   """Runs the data engineer's preparation if the motion cache is missing."""
   if not MOTION_CACHE.is_dir() or not any(MOTION_CACHE.glob("*.npz")):
-    from training.data import prepare
     prepare.main([])
 
 
@@ -148,7 +150,7 @@ def style_reference_tempi(ids: list[str], default_bpm: float, styles: list[str] 
   return refs
 
 
-# The bar clock of tempo-normalised models (docs/model.md section 1; training --bar-clock): beats per bar
+# The bar clock of tempo-normalised models (docs/model.md section 1; training.train --bar-clock): beats per bar
 # by style; the export writes it into the model's time_base, the engine's session applies it.
 BAR_CLOCK = {"beats_per_bar": 4, "style_beats_per_bar": {"waltz": 3}}
 
@@ -231,7 +233,6 @@ def dance_period_beats(ids: list[str], refs: dict[str, float]) -> dict[str, int]
   style's beat at its reference tempo (1800 / R warped frames), the median over the style's songs, rounded
   to whole beats (1..16, the engine's range). Styles without paired dances are left out (no period: the
   engine's period lock is off for them). The export writes it into the model's time_base (`dance_period_beats`)."""
-  from training.eval.tempo import dominant_period
   by_style: dict[str, list[float]] = {}
   for mid in ids:
     z = np.load(MOTION_CACHE / f"{mid}.npz")

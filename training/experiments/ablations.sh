@@ -6,15 +6,15 @@
 # everything else copied: full (control), no PRE, no gate, one shared Mamba, reactive (music shift 1).
 # Each is exported and measured with the engine (tempo following, seeds pooled) and the teacher-forced
 # validation losses (music gap).
-#   training/ablations.sh PARENT.dncw [ITERS [VARIANT...]]   (default 200 and all variants; run from anywhere;
+#   training/experiments/ablations.sh PARENT.dncw [ITERS [VARIANT...]]   (default 200 and all variants; run from anywhere;
 #                                                             .venv for metrics)
 # VARIANT: full, no_pre, no_gate, shared_mamba, reactive.
 # Results: training/runs/abl_<name>/{train.log,eval_report.json,engine_tempo.json,engine/metrics.md}
 # A run directory that exists is resumed if it was made from the same parent (its parent.sha256), else the
 # script stops: remove training/runs/abl_* to start over with another parent.
 set -euo pipefail
-parent="$(realpath "${1:?usage: training/ablations.sh PARENT.dncw [ITERS [VARIANT...]]}")"
-cd "$(dirname "$0")/.."
+parent="$(realpath "${1:?usage: training/experiments/ablations.sh PARENT.dncw [ITERS [VARIANT...]]}")"
+cd "$(dirname "$0")/../.."
 iters="${2:-200}"
 shift $(( $# < 2 ? $# : 2 ))
 wanted=("$@")

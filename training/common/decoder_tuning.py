@@ -1,38 +1,32 @@
-"""Decoder-only fine-tuning of a model's pose VQ-VAEs, with an energy-matching term (an experiment).
+"""Decoder-only fine-tuning of the pose VQ-VAEs, with an energy-matching term (the vqdec stage) and the
+own-codes term (the owndec stage); the standalone command is training.experiments.vq_decoder.
 
-    OMP_WAIT_POLICY=PASSIVE .venv/bin/python -m training.train_vq_decoder --model models/default.dncw \
-        --iters 1500 --energy-weight 1 --out /tmp/vqdec/e1
-    .venv/bin/python -m training.eval.vq_recon --upper-ckpt /tmp/vqdec/e1/vq_upper.pt \
-        --lower-ckpt /tmp/vqdec/e1/vq_lower.pt
+    hist = finetune_decoder(vq, "upper", training_arrays("upper"), iters=1500, energy_weight=0.1, log=log)
+    hist = finetune_decoder(vq, "upper", arrays, 1000, 0.1, own_dances=str(run / "own_dances"), own_weight=1,
+                            own_anchor=100)
 
 The encoders and codebooks stay frozen (eval mode: the EMA codebook is not updated), so every code, and the
 sequence model trained on the codes, stays valid; only the causal decoders change. Loss per window:
-train_vq.vq_loss (the shipped recipe's reconstruction, velocity and acceleration terms; the commitment term
+vq_training.vq_loss (the shipped recipe's reconstruction, velocity and acceleration terms; the commitment term
 is a constant here) plus `energy_weight` x `energy_loss`: per joint (the three position channels of a joint
 together; the lower body's four root channels one by one), in metres, the window's mean squared velocity
 and mean |acceleration| of the decoded motion against the real window's, as squared log-ratios. An L2-type
-decoder outputs about the conditional mean of the motion given the codes and so loses energy (docs/training.md,
-"Why FID_k stays ~20"); the energy term asks each window to keep its real energy.
+decoder outputs about the conditional mean of the motion given the codes and so loses energy
+(docs/research-log.md, "Why FID_k stays ~20"); the energy term asks each window to keep its real energy.
 
-With --own-dances DIR --own-weight W (the one command's owndec stage), the loss also has W x the own-codes
-term (OwnCodes): DIR holds the engine's dances on the training songs (dance-generate JSON); windows of their
-codes are decoded and, per style, the decoded motion's energy statistics are matched in mean and spread to
-the real training dances of that style. The decoder was trained only on real code sequences; the sequence
-model's sequences differ (their codes jump further between steps), and decoded from them each style's
-energy was off (default-20261204-4 on the training songs, mean log kinetic energy per joint: waltz +0.57
-real standard deviations, rumba +0.27, tango -0.77). This term fits the decoder to the codes it will
-actually decode. --own-anchor A adds A x the squared change of each
-window's mean decoded pose against the decoder before fine-tuning (posture kept; energy free).
-
-Writes <out>/vq_upper.pt and <out>/vq_lower.pt in train_vq's checkpoint format ("model", "cfg", "history",
-"iter"), which training.eval.vq_recon --upper-ckpt / --lower-ckpt read. With --export FILE it also writes
-the model file with the fine-tuned decoders: every other tensor and the metadata as in --model (the
-fine-tuning recorded under training.vqdec), f16 like the shipped file; the one command's `vqdec` stage
-(training.train) does the same inside a training run.
+With own_dances DIR and own_weight W (the owndec stage), the loss also has W x the own-codes term (OwnCodes):
+DIR holds the engine's dances on the training songs (dance-generate JSON); windows of their codes are decoded
+and, per style, the decoded motion's energy statistics are matched in mean and spread to the real training
+dances of that style. The decoder was trained only on real code sequences; the sequence model's sequences
+differ (their codes jump further between steps), and decoded from them each style's energy was off
+(default-20261204-4 on the training songs, mean log kinetic energy per joint: waltz +0.57 real standard
+deviations, rumba +0.27, tango -0.77). This term fits the decoder to the codes it will actually decode.
+own_anchor A adds A x the squared change of each window's mean decoded pose against the decoder before
+fine-tuning (posture kept; energy free).
 """
 from __future__ import annotations
 
-import argparse
+import copy
 import json
 import math
 import pathlib
@@ -42,8 +36,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from training.common.clips import style_index
+from training.common.vq_training import sample_windows, training_clips, vq_loss
 from training.model.vqvae import PoseVQVAE
-from training.train_vq import sample_windows, vq_loss
 
 PARTS = ("upper", "lower")
 # The energy statistics leave out each window's first frames: the causal decoder starts a window from zero
@@ -156,7 +151,6 @@ class OwnCodes:
   def __init__(self, vq: PoseVQVAE, dances: list[tuple[int, np.ndarray]],
                real: dict[int, list[np.ndarray]], groups, eps, steps: int = 32, per_style: int = 8,
                seed: int = 0, real_windows: int = 512, anchor: float = 0.0):
-    import copy
     self.vq, self.groups, self.eps, self.steps, self.per_style = vq, groups, eps, steps, per_style
     self.anchor = anchor
     # The decoder as it was: the posture anchor keeps each window's mean pose where it decoded before.
@@ -224,7 +218,6 @@ class OwnCodes:
 
 def load_own_codes(directory: str, part: str) -> list[tuple[int, np.ndarray]]:
   """Every dance file in `directory` (dance-generate JSON, one style each) -> (style index, step codes)."""
-  from training.train_data import style_index
   out = []
   for p in sorted(pathlib.Path(directory).glob("*.json")):
     d = json.loads(p.read_text())
@@ -244,7 +237,6 @@ def load_own_codes(directory: str, part: str) -> list[tuple[int, np.ndarray]]:
 
 def real_by_style(part: str) -> dict[int, list[np.ndarray]]:
   """The training clips of `part` grouped by style index."""
-  from training.train_vq import training_clips
   out: dict[int, list[np.ndarray]] = {}
   for c in training_clips(False):
     out.setdefault(c.style, []).append(getattr(c, part))
@@ -287,72 +279,6 @@ def finetune_decoder(vq: PoseVQVAE, part: str, arrays: list[np.ndarray], iters: 
 
 
 def training_arrays(part: str, mirror: bool = False) -> list[np.ndarray]:
-  """The VQ stage's training motion of `part` (train_vq.training_clips: split.json's "train", optionally
+  """The VQ stage's training motion of `part` (vq_training.training_clips: split.json's "train", optionally
   mirrored; the shipped model: not mirrored)."""
-  from training.train_vq import training_clips
   return [getattr(c, part) for c in training_clips(mirror)]
-
-
-def main(argv=None) -> int:
-  ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  ap.add_argument("--model", default="models/default.dncw", help="the .dncw file whose VQ-VAEs to fine-tune")
-  ap.add_argument("--iters", type=int, default=1500, help="iterations per part")
-  ap.add_argument("--energy-weight", type=float, default=1.0)
-  ap.add_argument("--lr", type=float, default=1e-4)
-  ap.add_argument("--batch", type=int, default=32)
-  ap.add_argument("--seed", type=int, default=0)
-  ap.add_argument("--parts", default="upper,lower")
-  ap.add_argument("--mirror", action="store_true", help="also the mirrored training motion (as --vq-mirror)")
-  ap.add_argument("--threads", type=int, default=1)
-  ap.add_argument("--own-dances", default=None,
-                  help="directory of the engine's dances on the training songs (OwnCodes; with --own-weight)")
-  ap.add_argument("--own-weight", type=float, default=0.0)
-  ap.add_argument("--own-steps", type=int, default=32, help="model steps per own-codes window (4 frames each)")
-  ap.add_argument("--own-anchor", type=float, default=0.0,
-                  help="weight of the posture anchor inside the own-codes term (window mean pose as decoded before)")
-  ap.add_argument("--out", required=True, help="directory for vq_upper.pt / vq_lower.pt")
-  ap.add_argument("--export", default=None, help="also write the model file with the fine-tuned decoders here")
-  ap.add_argument("--model-id", default=None, help="--export: the new file's model id (default: --model's)")
-  args = ap.parse_args(argv)
-  torch.set_num_threads(args.threads)
-  from training.export import load_models
-  seq, vqs, meta = load_models(args.model)
-  out = pathlib.Path(args.out)
-  out.mkdir(parents=True, exist_ok=True)
-  for part in args.parts.split(","):
-    t0 = time.time()
-    vq = vqs[part]
-    hist = finetune_decoder(vq, part, training_arrays(part, args.mirror), args.iters, args.energy_weight,
-                            lr=args.lr, batch=args.batch, seed=args.seed, own_dances=args.own_dances,
-                            own_weight=args.own_weight, own_anchor=args.own_anchor,
-                            own_steps=args.own_steps)
-    torch.save({"model": vq.state_dict(), "cfg": vq.cfg.to_dict(), "history": hist, "iter": args.iters,
-                "finetune": {k: v for k, v in vars(args).items()}}, out / f"vq_{part}.pt")
-    print(f"vqdec-{part}: {args.iters} iterations in {time.time() - t0:.0f} s -> {out / f'vq_{part}.pt'}",
-          flush=True)
-  (out / "args.json").write_text(json.dumps(vars(args), indent=1))
-  if args.export:
-    export_with_decoders(args.export, seq, vqs, meta, vars(args), args.model_id)
-    print(f"vqdec: wrote {args.export}", flush=True)
-  return 0
-
-
-def export_with_decoders(path: str, seq, vqs: dict[str, PoseVQVAE], meta: dict, finetune: dict,
-                         model_id: str | None = None) -> None:
-  """Writes `path`: the sequence model and VQ-VAEs given (decoders fine-tuned), metadata `meta` with the
-  fine-tuning under training.vqdec and the model id replaced if given; big matrices f16 (export.f16_policy).
-  Atomic: a failed write leaves an existing file (even the source model) intact."""
-  import os
-
-  from training.export import export_model
-  extra = json.loads(json.dumps(meta))
-  if model_id:
-    extra["model_id"] = model_id
-  extra.setdefault("training", {})["vqdec"] = {k: v for k, v in finetune.items() if k not in ("export", "model_id")}
-  tmp = f"{path}.tmp.dncw"
-  export_model(tmp, seq, vqs, extra, weights_dtype="f16")
-  os.replace(tmp, path)
-
-
-if __name__ == "__main__":
-  raise SystemExit(main())

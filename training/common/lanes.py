@@ -19,16 +19,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from training.common.tokens import mask_codes, window_probs
 from training.model.config import SeqConfig
-
-
-def mask_codes(codes: np.ndarray, k: int, code_mask: float, rng: np.random.Generator) -> None:
-  """Past-motion dropout, in place: each code becomes BOS (k) with probability code_mask and a random code
-  with probability code_mask / 4 (train_seq.make_batch's rule)."""
-  r = rng.random(len(codes))
-  codes[r < code_mask] = k
-  rnd = (r >= code_mask) & (r < code_mask * 1.25)
-  codes[rnd] = rng.integers(0, k, int(rnd.sum()))
 
 
 class Lanes:
@@ -37,7 +29,6 @@ class Lanes:
 
   def __init__(self, toks: list[dict], cfg: SeqConfig, rng: np.random.Generator, batch: int, steps: int,
                style_balance: float = 1.0):
-    from training.train_seq import window_probs
     self.toks, self.cfg, self.rng, self.batch, self.steps = toks, cfg, rng, batch, steps
     s = cfg.music_lookahead_steps
     lens = np.array([len(t["upper"]) for t in toks])

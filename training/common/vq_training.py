@@ -1,12 +1,16 @@
-"""Pose VQ-VAE training (upper and lower body) and its validation report.
+"""Pose VQ-VAE training (upper and lower body) and its validation report: what the vq stage runs, and the
+reconstruction figures the vqdec and owndec stages report too.
+
+    vq, history = train_vq("upper", [clip.upper for clip in training_clips()], cfg, iters, run / "vq_upper.pt", log)
+    report = validation_report({"upper": vq_u, "lower": vq_l}, validation_clips)
 
 Losses (Bailando's recipe): smooth-L1 reconstruction of the normalised features, their velocity and
 acceleration (weighted by `VQConfig.vel_weight` / `acc_weight`; training.train's defaults are 4 since
 2026-12-03: at weight 1 those terms were an order of magnitude below the position term and the decoder kept
-only 74-79 % of the real acceleration RMS, docs/training.md), commitment. For the lower body an optional term (`VQConfig.path_weight`, default 0) adds the
-integrated root path and heading error over the whole window (metres, radians). It was on (weight 1) until
-2026-12-02 and was measured to cost most of the lower body's pose accuracy for little less drift
-(docs/training.md, "The VQ-VAE's root path loss"), so it is off.
+only 74-79 % of the real acceleration RMS, docs/research-log.md), commitment. For the lower body an optional
+term (`VQConfig.path_weight`, default 0) adds the integrated root path and heading error over the whole window
+(metres, radians). It was on (weight 1) until 2026-12-02 and was measured to cost most of the lower body's pose
+accuracy for little less drift (docs/research-log.md, "The previous model (`default-20261202-2`)"), so it is off.
 """
 from __future__ import annotations
 
@@ -18,6 +22,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
+from training.common import clips as td
 from training.data import representation as rep
 from training.model.config import VQConfig
 from training.model.vqvae import PoseVQVAE
@@ -55,7 +60,6 @@ def vq_loss(vq: PoseVQVAE, x: torch.Tensor, part: str) -> tuple[torch.Tensor, di
 def training_clips(mirror: bool = False) -> list:
   """The VQ-VAEs' training motion: every clip of split.json's "train" (Tang, CMU salsa, Perfume), motion only;
   with `mirror` also each one reflected left-right (skeleton.mirror_positions)."""
-  from training import train_data as td
   ids = td.load_split()["train"]
   clips = [td.load_clip(i, with_music=False) for i in ids]
   if mirror:

@@ -1,9 +1,9 @@
 """Free-running moment matching: fine-tune the sequence model through its own free-running draws.
 
-    OMP_WAIT_POLICY=PASSIVE /usr/bin/python3 -m training.free_run_tune --model models/default.dncw \
+    OMP_WAIT_POLICY=PASSIVE /usr/bin/python3 -m training.experiments.free_run_tune --model models/default.dncw \
         --tokens RUN/tokens_train_warp_....pt --out R/model.dncw [--iters 300] [--own-weight 3] [--per-song]
 
-The diagnosis (docs/training.md, "Free-running loses the energetic styles' energy"): given a real history
+The diagnosis (docs/research-log.md, "Free-running loses the energetic styles' energy"): given a real history
 the model continues a song nearly as its dancer did; reading its own draws it hops between the style's codes
 and the decoders turn the hops into damped motion. Every earlier remedy changed the model's inputs (own-code
 inputs, self-training on kept draws) or its sampling. This one gives the model a gradient from what its own
@@ -15,7 +15,7 @@ free-running draws look like, decoded:
   decoders the sampled code's one-hot, exactly a free-running draw; the backward pass goes through its
   softmax, both into the step that drew it and into every later step that read it;
 - each part's VQ decoder (frozen) decodes the drawn codes after the prefix's last four real codes, so the
-  causal decoder starts from real context; the window's energy statistics (`train_vq_decoder.window_energy`:
+  causal decoder starts from real context; the window's energy statistics (`decoder_tuning.window_energy`:
   per joint, mean squared velocity and mean |acceleration|) are taken in log;
 - per style, the mean and the spread over the batch's rollouts of those statistics are matched to the same
   statistics of the style's real codes decoded on the same timeline (the decoders' own rendering of the
@@ -26,8 +26,8 @@ The term is added at `--own-weight` to the usual teacher-forced cross-entropy on
 balance 0.5, past-motion dropout 0.4, style dropout as in training), so the model keeps predicting the real
 continuation while it is steered on its own. No guidance in the rollouts (the engine applies it on top).
 The output is the input file with the sequence model's tensors replaced (decoders unchanged; the metadata
-gains a `free_run_tune` entry with the settings). Defaults: the measured run `frt_b` (docs/training.md, "Free-running
-moment matching"; measured, not shipped).
+gains a `free_run_tune` entry with the settings). Defaults: the measured run `frt_b` (docs/research-log.md,
+"Free-running moment matching"; measured, not shipped).
 """
 from __future__ import annotations
 
@@ -44,8 +44,9 @@ from tqdm import tqdm
 
 from training.export import f16_policy, load_models, read_dncw, seq_tensors, write_dncw
 from training.model.danceba import one_hot_style
-from training.train_seq import STYLE_DROPOUT, code_loss, make_batch
-from training.train_vq_decoder import channel_groups, window_energy
+from training.common.seq_loss import code_loss
+from training.common.tokens import STYLE_DROPOUT, make_batch
+from training.common.decoder_tuning import channel_groups, window_energy
 
 PARTS = ("upper", "lower")
 CONTEXT = 4  # real codes decoded before a rollout's draws (the decoder's warm-up; their frames dropped)

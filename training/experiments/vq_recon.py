@@ -2,12 +2,13 @@
 VQ-VAEs (no sequence model), beside the real dances and the baselines. A generated dance can hardly score
 better than these reconstructions.
 
-    .venv/bin/python -m training.eval.vq_recon [--model models/default.dncw] [--lower-ckpt RUN/vq_lower.pt]
+    .venv/bin/python -m training.experiments.vq_recon [--model models/default.dncw] [--lower-ckpt RUN/vq_lower.pt]
         [--upper-ckpt RUN/vq_upper.pt]
 
-`--lower-ckpt` / `--upper-ckpt` swap in a VQ-VAE checkpoint from training (train_vq) to compare it against
-the file's. Decoding: rep.decode from the real first frame's heading and root, then the canonical bone lengths
-(as the engine). Needs librosa's beat cache (the project .venv) for BAS.
+`--lower-ckpt` / `--upper-ckpt` swap in a VQ-VAE checkpoint from training (the vq stage's vq_{part}.pt,
+training.experiments.vq_decoder's) to compare it against the file's. Decoding: rep.decode from the real first
+frame's heading and root, then the canonical bone lengths (as the engine). Needs librosa's beat cache (the
+project .venv) for BAS.
 """
 from __future__ import annotations
 
@@ -17,19 +18,19 @@ import pathlib
 import numpy as np
 import torch
 
-from training import train_data as td
+from training.common import clips as td
+from training.common.vq_training import reconstruct
 from training.data import representation as rep
 from training.data import skeleton as sk
+from training.eval.evaluate import Dance, Evaluator, markdown_table
 from training.export import load_models
 from training.model.config import VQConfig
 from training.model.vqvae import PoseVQVAE
-from training.train_vq import reconstruct
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 
 
 def reconstructed(vqs, validation):
-  from training.eval.evaluate import Dance
   skel = sk.load_skeleton()
   out = []
   for d in validation:
@@ -43,11 +44,10 @@ def reconstructed(vqs, validation):
 
 
 def main(argv=None) -> None:
-  from training.eval.evaluate import Evaluator, markdown_table
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   ap.add_argument("--model", default=str(REPO / "models" / "default.dncw"))
-  ap.add_argument("--lower-ckpt", default=None, help="a train_vq checkpoint to use for the lower body")
-  ap.add_argument("--upper-ckpt", default=None, help="a train_vq checkpoint to use for the upper body")
+  ap.add_argument("--lower-ckpt", default=None, help="a vq stage checkpoint to use for the lower body")
+  ap.add_argument("--upper-ckpt", default=None, help="a vq stage checkpoint to use for the upper body")
   args = ap.parse_args(argv)
   _, vqs, _ = load_models(args.model)
   for part, path in (("lower", args.lower_ckpt), ("upper", args.upper_ckpt)):

@@ -1,7 +1,7 @@
 """Teacher-forced against free-running: does the sequence model keep a song's motion when it reads its own
-codes? (docs/training.md, "Free-running loses the energetic styles' energy").
+codes? (docs/research-log.md, "Free-running loses the energetic styles' energy").
 
-    /usr/bin/python3 -m training.eval.free_run --model M.dncw --tokens RUN/tokens_train_warp_....pt
+    /usr/bin/python3 -m training.experiments.free_run --model M.dncw --tokens RUN/tokens_train_warp_....pt
         [--songs ID ...] [--draws 4] [--guidance 1] [--seed 0] [--history-guidance H --history-mask P]
         [--music-guidance M] [--fid]
 
@@ -15,7 +15,7 @@ Each is cut into the evaluator's 10-s segments; the table gives each set's mean 
 (higher = more energetic) and the distance of its average kinetic features to the real decode's. A model
 that fits its training songs but drifts on its own codes shows a small teacher-forced distance and a large
 free-running one. --fid adds the FID of each set with the songs pooled (on a validation token cache, whose
-clips are the real dances' spans: where the model's FID comes from, docs/training.md "How the model scales
+clips are the real dances' spans: where the model's FID comes from, docs/research-log.md "How the model scales
 with its training songs").
 """
 from __future__ import annotations
@@ -30,7 +30,7 @@ from training.data import skeleton as sk
 from training.eval.evaluate import Dance, Evaluator, segment_table
 from training.export import load_models
 from training.model.danceba import one_hot_style
-from training.train_seq import feature_mask
+from training.common.seq_inputs import feature_mask
 
 
 def _codes_tensor(t: dict, part: str, n: int) -> torch.Tensor:
@@ -78,7 +78,7 @@ def free_running_draws(model, t: dict, draws: int, gen: torch.Generator, guidanc
   logits and l_nm the same model in its own states reading the music mean instead of the song's music (PRE
   kept; with music_ranges, [(begin, end), ...] per-frame feature columns, the model's
   sampling.music_guidance_features, only those columns): m < 1 weakens what the song's music stream adds to
-  the style and the rhythm (needs a model trained with --music-dropout; docs/training.md, "Music
+  the style and the rhythm (needs a model trained with --music-dropout; docs/research-log.md, "Music
   guidance"). m = 1: the draws are exactly those without it."""
   cfg, k = model.cfg, model.cfg.codebook_size
   n = len(t["upper"]) - 1

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from training.features.extract import run_cli
-from training.features.pre_reference import pre_batch_numpy, pre_batch_torch
+from training.experiments.pre_reference import pre_batch_numpy, pre_batch_torch
 
 
 @pytest.fixture(scope="module")

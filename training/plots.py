@@ -1,6 +1,6 @@
 """Training curves as PNG (VQ-VAE losses, sequence-model losses and the music-ablation gap).
 
-    /usr/bin/python3 -m training.train_plots training/runs/default [--out docs/images] [--extra RUN:LABEL ...]
+    /usr/bin/python3 -m training.plots training/runs/default [--out docs/images] [--extra RUN:LABEL ...]
 """
 from __future__ import annotations
 

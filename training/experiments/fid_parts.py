@@ -3,7 +3,7 @@ dimensions whose averages differ most from the real training dances', per style 
 energy of the torso and wrists and the turn rate, and per style its reach (style_reach), for dance sets
 beside the real validation dances.
 
-    /usr/bin/python3 -m training.eval.fid_parts D/s0/dances [D/s1/dances ...] [--top 12] [--spans]
+    /usr/bin/python3 -m training.experiments.fid_parts D/s0/dances [D/s1/dances ...] [--top 12] [--spans]
         [--leave-one-out] [--song-means]
 
 Each argument is a directory of dance JSON files (an engine_eval draw's `dances/`); all of them are pooled

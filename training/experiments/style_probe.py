@@ -10,8 +10,8 @@ facing +Z; features._local) averaged over the segment and their standard deviati
 arms in a hold or raised, stance width), log kinetic energies (features.kinetic_features), and the
 geometric relation fractions (features.geometric_features).
 
-  .venv/bin/python -m training.eval.style_probe --dances DIR [DIR ...]     # dance-motion/v1 files
-  .venv/bin/python -m training.eval.style_probe --prompts --model models/default.dncw --seed 0 \
+  .venv/bin/python -m training.experiments.style_probe --dances DIR [DIR ...]     # dance-motion/v1 files
+  .venv/bin/python -m training.experiments.style_probe --prompts --model models/default.dncw --seed 0 \
       --out-dir training/runs/X/prompts [--guidance W] [--temperature T]
 
 --prompts generates every validation song once per Tang style (dance-generate --style NAME) and prints the
@@ -25,7 +25,10 @@ import pathlib
 
 import numpy as np
 
+from training.common import clips as td
 from training.eval import features
+from training.eval.engine_eval import generate_song
+from training.eval.evaluate import cached_dances, load_dance, split_ids
 
 STYLES = ("cha-cha", "rumba", "tango", "waltz")
 REPO = pathlib.Path(__file__).resolve().parents[2]
@@ -98,15 +101,12 @@ def report(name: str, truth: list[str], pred: list[str]) -> dict:
 
 
 def default_probe():
-  from training.eval.evaluate import cached_dances, split_ids
   train = [d for d in cached_dances(split_ids("train")) if d.style in STYLES]
   x, y, _ = dance_segments(train)
   return StyleProbe(x, y)
 
 
 def main(argv=None) -> None:
-  from training import train_data as td
-  from training.eval.evaluate import cached_dances, load_dance, split_ids
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   ap.add_argument("--dances", nargs="*", default=[], help="directories of dance-motion/v1 files")
   ap.add_argument("--prompts", action="store_true", help="generate each validation song in each style")
@@ -134,7 +134,6 @@ def main(argv=None) -> None:
   if args.prompts:
     if not args.out_dir:
       ap.error("--prompts needs --out-dir")
-    from training.eval.engine_eval import generate_song
     out = pathlib.Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ds = []

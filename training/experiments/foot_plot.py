@@ -3,7 +3,7 @@ song and seed generated with the foot lock and without (dance-generate --foot-lo
 dances), beside the real dancer's speed on that song.
 
 Usage (from the repository root):
-  /usr/bin/python3 -m training.eval.foot_plot --on D_ON/tang_DANCE_R_4.json --off D_OFF/tang_DANCE_R_4.json \
+  /usr/bin/python3 -m training.experiments.foot_plot --on D_ON/tang_DANCE_R_4.json --off D_OFF/tang_DANCE_R_4.json \
       --song tang_DANCE_R_4 --start 20 --out docs/images/foot_lock_R_4.png
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from training import train_data as td  # noqa: E402
+from training.common import clips as td  # noqa: E402
 from training.data import skeleton as sk  # noqa: E402
 from training.eval.evaluate import load_dance  # noqa: E402
 

@@ -3,7 +3,7 @@ import torch
 import torch.nn.functional as F
 
 from training.export import load_models
-from training.free_run_tune import EnergyTarget, gumbel_one_hot, rollouts, step_soft
+from training.experiments.free_run_tune import EnergyTarget, gumbel_one_hot, rollouts, step_soft
 from training.model.danceba import one_hot_style
 
 TINY = "models/test-tiny.dncw"
@@ -114,7 +114,7 @@ def test_per_song_target_is_the_songs_own_and_rollouts_of_one_song_reach_it():
 
 def test_bad_settings_are_clear_errors(tmp_path):
   import pytest
-  from training.free_run_tune import main
+  from training.experiments.free_run_tune import main
   base = ["--model", TINY, "--tokens", str(tmp_path / "none.pt"), "--out", str(tmp_path / "o.dncw")]
   for flag, bad in (("--iters", "0"), ("--per-style", "0"), ("--prefix", "0"), ("--steps", "1"),
                     ("--lr", "0"), ("--own-weight", "-1")):

@@ -2,7 +2,7 @@
 with the validation's composition, each scored as the real row is (normaliser fitted on the held-out set,
 reference = every other paired Tang dance), over many random sets.
 
-    /usr/bin/python3 -m training.eval.real_spread [--draws 1000] [--seed 0] [--compare FID_K FID_G]
+    /usr/bin/python3 -m training.experiments.real_spread [--draws 1000] [--seed 0] [--compare FID_K FID_G]
 
 The validation set has one cha-cha, one rumba, the tango's last quarter and five waltzes. A random set draws
 the same numbers per style from all paired Tang dances; the tango, a single dance cut in time, always holds

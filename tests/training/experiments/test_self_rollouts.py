@@ -3,8 +3,8 @@ import numpy as np
 from training.data import skeleton as sk
 from training.eval.evaluate import Dance, Evaluator
 from training.model import SeqConfig
-from training.self_rollouts import SEGMENT_STEPS, SegmentScorer, clip_of_run, kept_runs
-from training.train_seq import make_batch, window_probs
+from training.experiments.self_rollouts import SEGMENT_STEPS, SegmentScorer, clip_of_run, kept_runs
+from training.common.tokens import make_batch, window_probs
 
 
 def test_kept_runs_are_the_consecutive_kept_segments():
