@@ -22,12 +22,12 @@
 #include "absl/status/statusor.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
-#include "server/dance_service.h"
-#include "server/engine_port.h"
-#include "server/http_server.h"
-#include "server/metrics.h"
-#include "server/session_hub.h"
-#include "server/web_handler.h"
+#include "server/core/engine_port.h"
+#include "server/core/metrics.h"
+#include "server/core/session_hub.h"
+#include "server/grpc/dance_service.h"
+#include "server/web/http_server.h"
+#include "server/web/web_handler.h"
 
 namespace dance::server {
 

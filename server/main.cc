@@ -22,8 +22,8 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "absl/time/time.h"
+#include "server/core/engine_port.h"
 #include "server/dance_server.h"
-#include "server/engine_port.h"
 #include "server/log.h"
 
 #ifndef DANCE_SOURCE_DIR

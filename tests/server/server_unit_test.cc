@@ -5,16 +5,16 @@
 #include <thread>
 
 #include "absl/strings/match.h"
-#include "gtest/gtest.h"
-#include "nlohmann/json.hpp"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/clock.h"
-#include "server/convert.h"
-#include "server/live_session.h"
-#include "server/metrics.h"
-#include "server/scheduler.h"
-#include "server/websocket.h"
-#include "server/ws_sink.h"
+#include "gtest/gtest.h"
+#include "nlohmann/json.hpp"
+#include "server/core/live_session.h"
+#include "server/core/metrics.h"
+#include "server/core/scheduler.h"
+#include "server/grpc/convert.h"
+#include "server/web/websocket.h"
+#include "server/web/ws_sink.h"
 
 namespace dance::server {
 namespace {

@@ -9,7 +9,7 @@
 #include "absl/strings/str_cat.h"
 #include "engine/runtime/session.h"
 #include "gtest/gtest.h"
-#include "server/engine_port.h"
+#include "server/core/engine_port.h"
 #include "server/log.h"
 #include "tests/engine/runtime/testing/tiny_model.h"
 

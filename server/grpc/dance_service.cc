@@ -1,4 +1,4 @@
-#include "server/dance_service.h"
+#include "server/grpc/dance_service.h"
 
 #include <memory>
 #include <optional>
@@ -6,8 +6,8 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/time/clock.h"
+#include "server/grpc/stream_writer.h"
 #include "server/log.h"
-#include "server/stream_writer.h"
 
 namespace dance::server {
 namespace {

@@ -1,4 +1,4 @@
-#include "server/web_handler.h"
+#include "server/web/web_handler.h"
 
 #include <sys/socket.h>
 
@@ -14,8 +14,8 @@
 #include "absl/time/clock.h"
 #include "nlohmann/json.hpp"
 #include "server/log.h"
-#include "server/websocket.h"
-#include "server/ws_sink.h"
+#include "server/web/websocket.h"
+#include "server/web/ws_sink.h"
 
 namespace dance::server {
 namespace {

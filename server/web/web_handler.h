@@ -9,16 +9,16 @@
 //   HttpServer http(http_options, [&web](const HttpRequest& r, HttpConnection& c) { web.Handle(r, c); });
 //
 // Thread safety: Handle is called concurrently from connection threads; it only touches thread-safe state.
-#ifndef DANCE_SERVER_WEB_HANDLER_H_
-#define DANCE_SERVER_WEB_HANDLER_H_
+#ifndef DANCE_SERVER_WEB_WEB_HANDLER_H_
+#define DANCE_SERVER_WEB_WEB_HANDLER_H_
 
 #include <cstddef>
 #include <string>
 
-#include "server/convert.h"
-#include "server/http_server.h"
-#include "server/metrics.h"
-#include "server/session_hub.h"
+#include "server/core/metrics.h"
+#include "server/core/session_hub.h"
+#include "server/grpc/convert.h"
+#include "server/web/http_server.h"
 
 namespace dance::server {
 
@@ -50,4 +50,4 @@ class WebHandler {
 
 }  // namespace dance::server
 
-#endif  // DANCE_SERVER_WEB_HANDLER_H_
+#endif  // DANCE_SERVER_WEB_WEB_HANDLER_H_

@@ -12,8 +12,8 @@
 //   hub.StartDrain(); hub.WaitUntilEmpty(absl::Seconds(30)); hub.Shutdown();
 //
 // Thread safety: every public method is thread-safe.
-#ifndef DANCE_SERVER_SESSION_HUB_H_
-#define DANCE_SERVER_SESSION_HUB_H_
+#ifndef DANCE_SERVER_CORE_SESSION_HUB_H_
+#define DANCE_SERVER_CORE_SESSION_HUB_H_
 
 #include <functional>
 #include <memory>
@@ -27,10 +27,10 @@
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
 #include "dance/v1/dance.pb.h"
-#include "server/engine_port.h"
-#include "server/live_session.h"
-#include "server/metrics.h"
-#include "server/scheduler.h"
+#include "server/core/engine_port.h"
+#include "server/core/live_session.h"
+#include "server/core/metrics.h"
+#include "server/core/scheduler.h"
 
 namespace dance::server {
 
@@ -92,4 +92,4 @@ class SessionHub {
 
 }  // namespace dance::server
 
-#endif  // DANCE_SERVER_SESSION_HUB_H_
+#endif  // DANCE_SERVER_CORE_SESSION_HUB_H_

@@ -5,16 +5,16 @@
 // next frame sent). Lossless (performers): over `limit` queued updates the sink closes itself with
 // RESOURCE_EXHAUSTED.
 // Thread safety: all methods are thread-safe.
-#ifndef DANCE_SERVER_WS_SINK_H_
-#define DANCE_SERVER_WS_SINK_H_
+#ifndef DANCE_SERVER_WEB_WS_SINK_H_
+#define DANCE_SERVER_WEB_WS_SINK_H_
 
 #include <cstddef>
 #include <deque>
 
 #include "absl/base/thread_annotations.h"
 #include "absl/synchronization/mutex.h"
-#include "server/frame_sink.h"
-#include "server/metrics.h"
+#include "server/core/frame_sink.h"
+#include "server/core/metrics.h"
 
 namespace dance::server {
 
@@ -47,4 +47,4 @@ class WsSink : public FrameSink {
 
 }  // namespace dance::server
 
-#endif  // DANCE_SERVER_WS_SINK_H_
+#endif  // DANCE_SERVER_WEB_WS_SINK_H_

@@ -1,4 +1,4 @@
-#include "server/http_server.h"
+#include "server/web/http_server.h"
 
 #include <arpa/inet.h>
 #include <netinet/in.h>
@@ -11,12 +11,12 @@
 #include <cstring>
 
 #include "absl/strings/ascii.h"
-#include "absl/strings/str_cat.h"
 #include "absl/strings/match.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "nlohmann/json.hpp"
 #include "server/log.h"
-#include "server/websocket.h"
+#include "server/web/websocket.h"
 
 namespace dance::server {
 

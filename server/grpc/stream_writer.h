@@ -14,8 +14,8 @@
 //
 // R must provide: void IssueWrite(const dance::v1::DanceUpdate*); void IssueRead(); void IssueFinish(grpc::Status).
 // Thread safety: all methods are thread-safe.
-#ifndef DANCE_SERVER_STREAM_WRITER_H_
-#define DANCE_SERVER_STREAM_WRITER_H_
+#ifndef DANCE_SERVER_GRPC_STREAM_WRITER_H_
+#define DANCE_SERVER_GRPC_STREAM_WRITER_H_
 
 #include <atomic>
 #include <cstddef>
@@ -33,8 +33,8 @@
 #include "absl/synchronization/mutex.h"
 #include "absl/time/clock.h"
 #include "absl/time/time.h"
-#include "server/frame_sink.h"
-#include "server/metrics.h"
+#include "server/core/frame_sink.h"
+#include "server/core/metrics.h"
 
 namespace dance::server {
 
@@ -274,4 +274,4 @@ class StreamWriter : public FrameSink, public std::enable_shared_from_this<Strea
 
 }  // namespace dance::server
 
-#endif  // DANCE_SERVER_STREAM_WRITER_H_
+#endif  // DANCE_SERVER_GRPC_STREAM_WRITER_H_

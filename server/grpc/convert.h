@@ -1,7 +1,7 @@
 // Conversions between the wire (dance.v1 protos, WebSocket JSON) and the server's engine-facing types,
 // with the protocol's validation rules. Pure functions; thread-safe.
-#ifndef DANCE_SERVER_CONVERT_H_
-#define DANCE_SERVER_CONVERT_H_
+#ifndef DANCE_SERVER_GRPC_CONVERT_H_
+#define DANCE_SERVER_GRPC_CONVERT_H_
 
 #include <optional>
 #include <string>
@@ -9,8 +9,8 @@
 #include "absl/status/statusor.h"
 #include "dance/v1/dance.pb.h"
 #include "nlohmann/json.hpp"
-#include "server/engine_port.h"
-#include "server/live_session.h"
+#include "server/core/engine_port.h"
+#include "server/core/live_session.h"
 
 namespace dance::server {
 
@@ -47,4 +47,4 @@ nlohmann::json SummaryToJson(const dance::v1::SessionSummary& summary);
 
 }  // namespace dance::server
 
-#endif  // DANCE_SERVER_CONVERT_H_
+#endif  // DANCE_SERVER_GRPC_CONVERT_H_

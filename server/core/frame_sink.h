@@ -3,8 +3,8 @@
 //
 // Thread safety: implementations must make Deliver and Close safe to call from any thread, and must never
 // block in them (the scheduler thread calls them between engine steps).
-#ifndef DANCE_SERVER_FRAME_SINK_H_
-#define DANCE_SERVER_FRAME_SINK_H_
+#ifndef DANCE_SERVER_CORE_FRAME_SINK_H_
+#define DANCE_SERVER_CORE_FRAME_SINK_H_
 
 #include <memory>
 
@@ -34,4 +34,4 @@ class FrameSink {
 
 }  // namespace dance::server
 
-#endif  // DANCE_SERVER_FRAME_SINK_H_
+#endif  // DANCE_SERVER_CORE_FRAME_SINK_H_

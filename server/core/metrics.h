@@ -8,8 +8,8 @@
 //   std::string text = m.RenderPrometheus(active_sessions, active_viewers);
 //
 // Thread safety: every member is lock-free atomic; all methods may be called from any thread.
-#ifndef DANCE_SERVER_METRICS_H_
-#define DANCE_SERVER_METRICS_H_
+#ifndef DANCE_SERVER_CORE_METRICS_H_
+#define DANCE_SERVER_CORE_METRICS_H_
 
 #include <array>
 #include <atomic>
@@ -69,4 +69,4 @@ struct ServerMetrics {
 
 }  // namespace dance::server
 
-#endif  // DANCE_SERVER_METRICS_H_
+#endif  // DANCE_SERVER_CORE_METRICS_H_

@@ -1,4 +1,4 @@
-#include "server/live_session.h"
+#include "server/core/live_session.h"
 
 #include <algorithm>
 #include <cstring>

@@ -10,8 +10,8 @@
 //   ...  http.Stop();                          // closes the listener and every connection, joins threads
 //
 // Thread safety: Start/Stop from one thread. The handler runs on connection threads, concurrently.
-#ifndef DANCE_SERVER_HTTP_SERVER_H_
-#define DANCE_SERVER_HTTP_SERVER_H_
+#ifndef DANCE_SERVER_WEB_HTTP_SERVER_H_
+#define DANCE_SERVER_WEB_HTTP_SERVER_H_
 
 #include <atomic>
 #include <functional>
@@ -91,4 +91,4 @@ const char* HttpStatusText(int status);
 
 }  // namespace dance::server
 
-#endif  // DANCE_SERVER_HTTP_SERVER_H_
+#endif  // DANCE_SERVER_WEB_HTTP_SERVER_H_

@@ -1,4 +1,4 @@
-#include "server/ws_sink.h"
+#include "server/web/ws_sink.h"
 
 #include <memory>
 

@@ -11,8 +11,8 @@
 // close frame.
 // Thread safety: one thread may Receive while others Send (sends are serialised by an internal mutex).
 // The WebSocket does not own the fd.
-#ifndef DANCE_SERVER_WEBSOCKET_H_
-#define DANCE_SERVER_WEBSOCKET_H_
+#ifndef DANCE_SERVER_WEB_WEBSOCKET_H_
+#define DANCE_SERVER_WEB_WEBSOCKET_H_
 
 #include <cstddef>
 #include <cstdint>
@@ -59,4 +59,4 @@ class WebSocket {
 
 }  // namespace dance::server
 
-#endif  // DANCE_SERVER_WEBSOCKET_H_
+#endif  // DANCE_SERVER_WEB_WEBSOCKET_H_

@@ -1,4 +1,4 @@
-#include "server/websocket.h"
+#include "server/web/websocket.h"
 
 #include <openssl/evp.h>
 #include <openssl/sha.h>

@@ -10,8 +10,8 @@
 //
 // Thread safety: gRPC calls the service from its own threads; the service itself is stateless beyond the
 // hub and metrics, which are thread-safe. It must outlive the grpc::Server.
-#ifndef DANCE_SERVER_DANCE_SERVICE_H_
-#define DANCE_SERVER_DANCE_SERVICE_H_
+#ifndef DANCE_SERVER_GRPC_DANCE_SERVICE_H_
+#define DANCE_SERVER_GRPC_DANCE_SERVICE_H_
 
 #include <string>
 
@@ -20,9 +20,9 @@
 #include "absl/status/status.h"
 #include "absl/time/time.h"
 #include "dance/v1/dance.grpc.pb.h"
-#include "server/convert.h"
-#include "server/metrics.h"
-#include "server/session_hub.h"
+#include "server/core/metrics.h"
+#include "server/core/session_hub.h"
+#include "server/grpc/convert.h"
 
 namespace dance::server {
 
@@ -65,4 +65,4 @@ class DanceServiceImpl final : public dance::v1::DanceService::CallbackService {
 
 }  // namespace dance::server
 
-#endif  // DANCE_SERVER_DANCE_SERVICE_H_
+#endif  // DANCE_SERVER_GRPC_DANCE_SERVICE_H_

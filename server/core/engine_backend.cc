@@ -6,7 +6,7 @@
 
 #include "engine/runtime/model.h"
 #include "engine/runtime/session.h"
-#include "server/engine_port.h"
+#include "server/core/engine_port.h"
 
 namespace dance::server {
 namespace {

@@ -1,4 +1,4 @@
-#include "server/convert.h"
+#include "server/grpc/convert.h"
 
 #include <algorithm>
 #include <cmath>

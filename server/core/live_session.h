@@ -11,8 +11,8 @@
 //
 // Flow control: EnqueueAudio reports when the inbox holds more than `max_pending_samples`; the network side
 // then stops reading and the scheduler calls the resumer registered with SetReadResumer after draining.
-#ifndef DANCE_SERVER_LIVE_SESSION_H_
-#define DANCE_SERVER_LIVE_SESSION_H_
+#ifndef DANCE_SERVER_CORE_LIVE_SESSION_H_
+#define DANCE_SERVER_CORE_LIVE_SESSION_H_
 
 #include <atomic>
 #include <cstdint>
@@ -28,9 +28,9 @@
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
 #include "dance/v1/dance.pb.h"
-#include "server/engine_port.h"
-#include "server/frame_sink.h"
-#include "server/metrics.h"
+#include "server/core/engine_port.h"
+#include "server/core/frame_sink.h"
+#include "server/core/metrics.h"
 
 namespace dance::server {
 
@@ -189,4 +189,4 @@ void FillSkeleton(const ModelDescription& model, dance::v1::Skeleton* out);
 
 }  // namespace dance::server
 
-#endif  // DANCE_SERVER_LIVE_SESSION_H_
+#endif  // DANCE_SERVER_CORE_LIVE_SESSION_H_

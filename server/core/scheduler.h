@@ -13,8 +13,8 @@
 //
 // Thread safety: Add, Wake, size and Stop may be called from any thread. on_complete runs on the
 // scheduler thread.
-#ifndef DANCE_SERVER_SCHEDULER_H_
-#define DANCE_SERVER_SCHEDULER_H_
+#ifndef DANCE_SERVER_CORE_SCHEDULER_H_
+#define DANCE_SERVER_CORE_SCHEDULER_H_
 
 #include <atomic>
 #include <functional>
@@ -26,9 +26,9 @@
 #include "absl/status/status.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
-#include "server/engine_port.h"
-#include "server/live_session.h"
-#include "server/metrics.h"
+#include "server/core/engine_port.h"
+#include "server/core/live_session.h"
+#include "server/core/metrics.h"
 
 namespace dance::server {
 
@@ -81,4 +81,4 @@ class Scheduler {
 
 }  // namespace dance::server
 
-#endif  // DANCE_SERVER_SCHEDULER_H_
+#endif  // DANCE_SERVER_CORE_SCHEDULER_H_

@@ -12,8 +12,8 @@
 //
 // Thread safety: EngineBackend is immutable after creation and safe to share across threads (Open and
 // StepBatch may run concurrently on disjoint streams). An EngineStream has one owner thread at a time.
-#ifndef DANCE_SERVER_ENGINE_PORT_H_
-#define DANCE_SERVER_ENGINE_PORT_H_
+#ifndef DANCE_SERVER_CORE_ENGINE_PORT_H_
+#define DANCE_SERVER_CORE_ENGINE_PORT_H_
 
 #include <array>
 #include <cstdint>
@@ -114,4 +114,4 @@ absl::StatusOr<std::unique_ptr<EngineBackend>> LoadEngineBackend(const std::stri
 
 }  // namespace dance::server
 
-#endif  // DANCE_SERVER_ENGINE_PORT_H_
+#endif  // DANCE_SERVER_CORE_ENGINE_PORT_H_
