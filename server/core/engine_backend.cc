@@ -1,11 +1,10 @@
-// LoadEngineBackend: the port (engine_port.h) implemented with the real engine (engine/runtime).
-// The only file of the server that includes engine headers.
+// LoadEngineBackend: the port (engine_port.h) implemented with the real engine, through its public header
+// (engine/engine.h). The only file of the server that includes an engine header.
 #include <memory>
 #include <utility>
 #include <vector>
 
-#include "engine/runtime/model.h"
-#include "engine/runtime/session.h"
+#include "engine/engine.h"
 #include "server/core/engine_port.h"
 
 namespace dance::server {

@@ -1,9 +1,10 @@
 // The server's view of the engine: a narrow port over dance::engine::Session / StepBatch.
 //
-// The server never includes engine headers outside engine_backend.cc. Everything it needs from the engine
-// is here: open a stream, push audio, ask how many steps are ready, advance many streams in one batched
-// step, collect pose frames. The real implementation (LoadEngineBackend) wraps engine/runtime/session.h;
-// unit tests of the scheduler may supply a labelled test double.
+// The server never includes engine headers outside core/engine_backend.cc, which includes only the
+// engine's public header (engine/engine.h). Everything the server needs from the engine is here: open a
+// stream, push audio, ask how many steps are ready, advance many streams in one batched step, collect pose
+// frames. The real implementation (LoadEngineBackend) wraps engine::Session; unit tests of the core may
+// supply a labelled test double.
 //
 // Usage:
 //   ASSIGN_OR_RETURN(std::unique_ptr<EngineBackend> backend, LoadEngineBackend("models/test-tiny.dncw"));
