@@ -1,6 +1,6 @@
-// DanceServer: the whole service in one object: engine backend, session hub (admission + schedulers),
-// the gRPC server (DanceService, health, reflection) and the HTTP/WebSocket server. main.cc maps flags to
-// DanceServerOptions; integration tests start one on port 0.
+// DanceServer: the whole service in one object: engine backend, the core's session hub (admission +
+// schedulers), and its two transports: the gRPC server (DanceService, health, reflection) and the
+// HTTP/WebSocket server. main.cc maps flags to DanceServerOptions; integration tests start one on port 0.
 //
 // Usage:
 //   ASSIGN_OR_RETURN(auto backend, LoadEngineBackend("models/test-tiny.dncw"));

@@ -10,17 +10,9 @@
 namespace dance::server {
 namespace {
 
-int BytesPerSample(PcmFormat f) { return f == PcmFormat::kF32Le ? 4 : 2; }
-
 int64_t UnixMicros(absl::Time t) { return absl::ToUnixMicros(t); }
 
 }  // namespace
-
-void FillSkeleton(const ModelDescription& model, dance::v1::Skeleton* out) {
-  for (const std::string& n : model.joint_names) out->add_joint_names(n);
-  for (int p : model.parents) out->add_parents(p);
-  for (float v : model.rest_offsets) out->add_rest_offsets(v);
-}
 
 LiveSession::LiveSession(SessionSettings settings, std::unique_ptr<EngineStream> stream,
                          const ModelDescription& model, ServerMetrics* metrics, absl::Time now)
@@ -29,17 +21,7 @@ LiveSession::LiveSession(SessionSettings settings, std::unique_ptr<EngineStream>
       metrics_(metrics),
       started_(now),
       last_arrival_(now) {
-  auto info = std::make_shared<dance::v1::DanceUpdate>();
-  dance::v1::SessionInfo* si = info->mutable_info();
-  si->set_session_id(settings_.id);
-  si->set_model_id(model.model_id);
-  si->set_latency_ms(model.latency_ms);
-  si->set_fps(model.fps);
-  FillSkeleton(model, si->mutable_skeleton());
-  for (const std::string& s : model.styles) si->add_styles(s);
-  si->set_samples_per_step(model.samples_per_step);
-  si->set_frames_per_step(model.frames_per_step);
-  info_ = std::move(info);
+  info_ = std::make_shared<const Update>(InfoUpdate{settings_.id, model});
   current_style_ = settings_.config.style;
 }
 
@@ -167,23 +149,17 @@ int LiveSession::viewer_count() const {
   return static_cast<int>(viewers_.size());
 }
 
-dance::v1::SessionSummary LiveSession::Summary() const {
-  dance::v1::SessionSummary s;
-  s.set_session_id(settings_.id);
-  s.set_client_name(settings_.client_name);
-  s.set_started_unix_ms(absl::ToUnixMillis(started_));
-  s.set_frames(frames_out_.load(std::memory_order_relaxed));
-  s.set_audio_ms(1000.0 * static_cast<double>(samples_in_.load(std::memory_order_relaxed)) /
-                 settings_.config.sample_rate_hz);
-  s.set_viewers(viewer_count());
+SessionSummary LiveSession::Summary() const {
+  SessionSummary s;
+  s.session_id = settings_.id;
+  s.client_name = settings_.client_name;
+  s.started_unix_ms = absl::ToUnixMillis(started_);
+  s.frames = frames_out_.load(std::memory_order_relaxed);
+  s.audio_ms = 1000.0 * static_cast<double>(samples_in_.load(std::memory_order_relaxed)) /
+               settings_.config.sample_rate_hz;
+  s.viewers = viewer_count();
   absl::MutexLock lock(&inbox_mu_);
-  if (current_style_) {
-    for (const auto& [name, weight] : *current_style_) {
-      dance::v1::StyleWeight* w = s.add_style();
-      w->set_name(name);
-      w->set_weight(weight);
-    }
-  }
+  if (current_style_) s.style = *current_style_;
   return s;
 }
 
@@ -239,9 +215,9 @@ absl::Status LiveSession::Drain(absl::Time now) {
         if (item.style) s.Update(stream_->SetStyle(*item.style));
         if (item.sampling) s.Update(stream_->SetSampling(*item.sampling));
         if (s.ok()) {
-          PushEvent(dance::v1::Event::KIND_CONTROL_APPLIED, "control applied");
+          PushEvent(EventKind::kControlApplied, "control applied");
         } else {
-          PushEvent(dance::v1::Event::KIND_WARNING, absl::StrCat("control ignored: ", s.message()));
+          PushEvent(EventKind::kWarning, absl::StrCat("control ignored: ", s.message()));
         }
         break;
       }
@@ -282,15 +258,14 @@ absl::Status LiveSession::CheckHealth(absl::Time now) {
   return absl::OkStatus();
 }
 
-void LiveSession::PushEvent(dance::v1::Event::Kind kind, const std::string& message) {
-  auto u = std::make_shared<dance::v1::DanceUpdate>();
-  dance::v1::Event* e = u->mutable_event();
-  e->set_kind(kind);
-  e->set_frame_index(frames_out_.load(std::memory_order_relaxed));
-  e->set_time_ms(1000.0 * static_cast<double>(samples_in_.load(std::memory_order_relaxed)) /
-                 settings_.config.sample_rate_hz);
-  e->set_message(message);
-  PublishOne(u);
+void LiveSession::PushEvent(EventKind kind, std::string message) {
+  EventUpdate e;
+  e.kind = kind;
+  e.frame_index = frames_out_.load(std::memory_order_relaxed);
+  e.time_ms = 1000.0 * static_cast<double>(samples_in_.load(std::memory_order_relaxed)) /
+              settings_.config.sample_rate_hz;
+  e.message = std::move(message);
+  PublishOne(std::make_shared<const Update>(std::move(e)));
 }
 
 void LiveSession::AfterStep(absl::Time now) {
@@ -313,30 +288,18 @@ void LiveSession::PublishFrames(absl::Time now, const TriggerMark* audio_trigger
   stream_->PopFrames(&frame_buf_);
   if (frame_buf_.empty()) return;
   metrics_->frame_latency.Observe(absl::ToDoubleSeconds(now - trigger_arrival));
-  std::vector<UpdatePtr> full;
-  std::vector<UpdatePtr> stripped;
-  full.reserve(frame_buf_.size());
+  const int64_t server_time_us = UnixMicros(now);
+  publish_buf_.clear();
   for (const FrameData& f : frame_buf_) {
-    auto u = std::make_shared<dance::v1::DanceUpdate>();
-    dance::v1::PoseFrame* pf = u->mutable_frame();
-    pf->set_index(f.index);
-    pf->set_time_ms(f.time_s * 1000.0);
-    pf->mutable_positions()->Add(f.positions.begin(), f.positions.end());
-    pf->set_upper_code(f.upper_code);
-    pf->set_lower_code(f.lower_code);
-    pf->set_trigger_sample_end(trigger_end);
-    pf->set_server_time_us(UnixMicros(now));
-    auto bare = std::make_shared<dance::v1::DanceUpdate>(*u);
-    pf->mutable_rotations()->Add(f.rotations.begin(), f.rotations.end());
-    full.push_back(std::move(u));
-    stripped.push_back(std::move(bare));
+    publish_buf_.push_back(std::make_shared<const Update>(FrameUpdate{f, trigger_end, server_time_us}));
   }
   frames_out_.fetch_add(static_cast<int64_t>(frame_buf_.size()), std::memory_order_relaxed);
   metrics_->frames_total.fetch_add(frame_buf_.size(), std::memory_order_relaxed);
-  Publish(std::move(full), stripped);
+  Publish(publish_buf_);
+  publish_buf_.clear();
 }
 
-void LiveSession::Publish(std::vector<UpdatePtr> updates, const std::vector<UpdatePtr>& stripped) {
+void LiveSession::Publish(const std::vector<UpdatePtr>& updates) {
   std::shared_ptr<FrameSink> performer;
   std::vector<std::shared_ptr<FrameSink>> viewers;
   {
@@ -344,17 +307,26 @@ void LiveSession::Publish(std::vector<UpdatePtr> updates, const std::vector<Upda
     performer = performer_;
     viewers = viewers_;
   }
+  // The same objects to every sink: each encodes an update into its wire form once for all sinks of
+  // that form (update.h).
   auto send = [&](FrameSink* sink) {
-    const std::vector<UpdatePtr>& list = sink->WantsRotations() ? updates : stripped;
-    for (const UpdatePtr& u : list) sink->Deliver(u);
+    for (const UpdatePtr& u : updates) sink->Deliver(u);
   };
   if (performer) send(performer.get());
   for (const auto& v : viewers) send(v.get());
 }
 
-void LiveSession::PublishOne(const UpdatePtr& update) {
-  std::vector<UpdatePtr> one{update};
-  Publish(one, one);
+void LiveSession::PublishOne(UpdatePtr update) {
+  const std::vector<UpdatePtr> one{std::move(update)};
+  Publish(one);
+}
+
+UpdatePtr LiveSession::EndUpdateNow(const char* reason) const {
+  EndUpdate e;
+  e.frames = frames_out_.load();
+  e.audio_ms = 1000.0 * static_cast<double>(samples_in_.load()) / settings_.config.sample_rate_hz;
+  e.reason = reason;
+  return std::make_shared<const Update>(std::move(e));
 }
 
 bool LiveSession::OutputBacklogged(absl::Time now) {
@@ -391,12 +363,7 @@ absl::Status LiveSession::Complete(const absl::Status& requested) {
   }
   if (status.ok()) {
     PublishFrames(absl::Now());  // the engine may flush a tail on EndOfAudio
-    auto u = std::make_shared<dance::v1::DanceUpdate>();
-    dance::v1::StreamEnd* e = u->mutable_end();
-    e->set_frames(frames_out_.load());
-    e->set_audio_ms(1000.0 * static_cast<double>(samples_in_.load()) / settings_.config.sample_rate_hz);
-    e->set_reason("end_of_audio");
-    PublishOne(u);
+    PublishOne(EndUpdateNow("end_of_audio"));
   }
   return status;
 }
@@ -415,11 +382,7 @@ void LiveSession::CloseSinks() {
   if (performer) performer->Close(status);
   if (!status.ok() && !viewers.empty()) {
     // Viewers did nothing wrong: they see a normal end that says the session closed.
-    auto u = std::make_shared<dance::v1::DanceUpdate>();
-    dance::v1::StreamEnd* e = u->mutable_end();
-    e->set_frames(frames_out_.load());
-    e->set_audio_ms(1000.0 * static_cast<double>(samples_in_.load()) / settings_.config.sample_rate_hz);
-    e->set_reason("session_closed");
+    const UpdatePtr u = EndUpdateNow("session_closed");
     for (const auto& v : viewers) v->Deliver(u);
   }
   for (const auto& v : viewers) v->Close(absl::OkStatus());

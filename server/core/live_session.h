@@ -1,13 +1,18 @@
 // LiveSession: one performer's stream inside the server: the engine stream, the inbox fed by the network
-// side, and the fan-out of updates to the performer and its viewers.
+// side, and the fan-out of updates to the performer and its viewers. It speaks core types only
+// (update.h); the sinks encode.
 //
 // Two sides, two threads:
-//   network side (gRPC reactors, WebSocket threads): EnqueueAudio / EnqueueControl / EnqueueEnd / Fail,
+//   network side (the transports' threads): EnqueueAudio / EnqueueControl / EnqueueEnd / Fail,
 //     AttachPerformer / AddViewer / RemoveViewer, Summary. These only take the session's mutexes briefly.
 //   scheduler side (exactly one scheduler thread owns the session): Drain, CheckTimeouts, StepsReady,
 //     engine_stream, AfterStep, ReadyToComplete, Complete. Only this thread touches the engine stream.
 // A session is shared (std::shared_ptr) by the hub's registry, its scheduler and the network handlers; it
 // ends exactly once, in Complete(), called by its scheduler.
+//
+// Fan-out: every update is built once, as one shared immutable Update, and handed to every sink; a sink
+// that needs a wire form asks the update for it (memoised per form), so N viewers cost one encoding per
+// form, not N.
 //
 // Flow control: EnqueueAudio reports when the inbox holds more than `max_pending_samples`; the network side
 // then stops reading and the scheduler calls the resumer registered with SetReadResumer after draining.
@@ -27,14 +32,13 @@
 #include "absl/status/status.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
-#include "dance/v1/dance.pb.h"
 #include "server/core/engine_port.h"
 #include "server/core/frame_sink.h"
 #include "server/core/metrics.h"
+#include "server/core/stream_request.h"
+#include "server/core/update.h"
 
 namespace dance::server {
-
-enum class PcmFormat { kF32Le, kS16Le };
 
 struct SessionSettings {
   std::string id;
@@ -54,6 +58,17 @@ struct SessionSettings {
   std::function<void()> wake;
 };
 
+// A live session as ListSessions and /api/sessions show it.
+struct SessionSummary {
+  std::string session_id;
+  std::string client_name;
+  int64_t started_unix_ms = 0;  // ms since the Unix epoch
+  int64_t frames = 0;           // frames produced so far
+  double audio_ms = 0.0;        // audio received so far, ms
+  int viewers = 0;
+  StyleMix style;               // the style mix in effect (the latest one queued)
+};
+
 class LiveSession {
  public:
   LiveSession(SessionSettings settings, std::unique_ptr<EngineStream> stream, const ModelDescription& model,
@@ -63,7 +78,7 @@ class LiveSession {
 
   const std::string& id() const { return settings_.id; }
   const SessionSettings& settings() const { return settings_; }
-  // The SessionInfo update every sink receives first.
+  // The InfoUpdate every sink receives first.
   const UpdatePtr& info() const { return info_; }
 
   // ---- network side (any thread) ----
@@ -83,7 +98,7 @@ class LiveSession {
   absl::Status AddViewer(std::shared_ptr<FrameSink> sink);
   void RemoveViewer(const FrameSink* sink);
   int viewer_count() const;
-  dance::v1::SessionSummary Summary() const;
+  SessionSummary Summary() const;
   bool has_pending_work() const;
 
   // ---- scheduler side (the owning scheduler thread only) ----
@@ -137,9 +152,10 @@ class LiveSession {
   // just drained (a tempo-normalised model emits a frame once its audio has arrived), so that chunk, not
   // the one that made the last step ready, is what their latency is measured from.
   void PublishFrames(absl::Time now, const TriggerMark* audio_trigger = nullptr);
-  void Publish(std::vector<UpdatePtr> updates, const std::vector<UpdatePtr>& stripped);
-  void PublishOne(const UpdatePtr& update);
-  void PushEvent(dance::v1::Event::Kind kind, const std::string& message);
+  void Publish(const std::vector<UpdatePtr>& updates);
+  void PublishOne(UpdatePtr update);
+  void PushEvent(EventKind kind, std::string message);
+  UpdatePtr EndUpdateNow(const char* reason) const;
   absl::Status PushPcm(const InboxItem& item);
   void RecordTrigger(int64_t end_sample, absl::Time arrival);
 
@@ -182,10 +198,8 @@ class LiveSession {
   std::vector<float> f32_buf_;
   std::vector<int16_t> s16_buf_;
   std::vector<FrameData> frame_buf_;
+  std::vector<UpdatePtr> publish_buf_;
 };
-
-// Builds the SessionInfo for a model (shared by GetModelInfo and the WebSocket "info" message).
-void FillSkeleton(const ModelDescription& model, dance::v1::Skeleton* out);
 
 }  // namespace dance::server
 

@@ -1,11 +1,12 @@
-// Process-wide server metrics, rendered in the Prometheus text exposition format (0.0.4).
+// Process-wide server metrics: counters, gauges and histograms, written by every layer. The HTTP transport
+// renders them for Prometheus (server/web/prometheus.h).
 //
 // Usage:
 //   ServerMetrics m;
 //   m.frames_total.fetch_add(4);
 //   m.step_latency.Observe(0.0031);            // seconds
 //   m.CountError(absl::StatusCode::kInvalidArgument);
-//   std::string text = m.RenderPrometheus(active_sessions, active_viewers);
+//   uint64_t n = m.errors(absl::StatusCode::kInvalidArgument);
 //
 // Thread safety: every member is lock-free atomic; all methods may be called from any thread.
 #ifndef DANCE_SERVER_CORE_METRICS_H_
@@ -13,8 +14,8 @@
 
 #include <array>
 #include <atomic>
+#include <cstddef>
 #include <cstdint>
-#include <string>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -27,9 +28,12 @@ class Histogram {
  public:
   explicit Histogram(std::vector<double> upper_bounds_s);
   void Observe(double seconds);
-  // Appends "# TYPE", buckets, _sum and _count lines for metric `name`.
-  void Render(const std::string& name, const std::string& help, std::string* out) const;
   uint64_t count() const { return count_.load(std::memory_order_relaxed); }
+  // Upper bounds, seconds; observations in bucket i (i == bounds().size(): above the last bound, +Inf);
+  // sum of all observations, microseconds.
+  const std::vector<double>& bounds() const { return bounds_; }
+  uint64_t bucket(size_t i) const { return buckets_[i].load(std::memory_order_relaxed); }
+  uint64_t sum_us() const { return sum_us_.load(std::memory_order_relaxed); }
   // Approximate quantile (upper bound of the bucket holding it), seconds; 0 if empty.
   double ApproxQuantile(double q) const;
 
@@ -57,14 +61,13 @@ struct ServerMetrics {
   Histogram frame_latency;   // seconds from the triggering chunk's arrival to frame publication
   Histogram batch_size;      // sessions per StepBatch (unitless, buckets 1..512)
 
+  // Streams ended with an error, by status code (1 .. kMaxStatusCode; OK and unknown codes are not counted).
+  static constexpr int kMaxStatusCode = 16;
   void CountError(absl::StatusCode code);
   uint64_t errors(absl::StatusCode code) const;
 
-  std::string RenderPrometheus(int active_sessions, int max_sessions,
-                               bool draining) const;
-
  private:
-  std::array<std::atomic<uint64_t>, 17> errors_by_code_{};
+  std::array<std::atomic<uint64_t>, kMaxStatusCode + 1> errors_by_code_{};
 };
 
 }  // namespace dance::server

@@ -93,18 +93,18 @@ std::shared_ptr<LiveSession> SessionHub::Find(absl::string_view id) const {
   return it == sessions_.end() ? nullptr : it->second;
 }
 
-std::vector<dance::v1::SessionSummary> SessionHub::List() const {
+std::vector<SessionSummary> SessionHub::List() const {
   std::vector<std::shared_ptr<LiveSession>> live;
   {
     absl::MutexLock lock(&mu_);
     for (const auto& [id, s] : sessions_) live.push_back(s);
   }
-  std::vector<dance::v1::SessionSummary> out;
+  std::vector<SessionSummary> out;
   out.reserve(live.size());
   for (const auto& s : live) out.push_back(s->Summary());
-  std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) {
-    return a.started_unix_ms() != b.started_unix_ms() ? a.started_unix_ms() > b.started_unix_ms()
-                                                      : a.session_id() < b.session_id();
+  std::sort(out.begin(), out.end(), [](const SessionSummary& a, const SessionSummary& b) {
+    return a.started_unix_ms != b.started_unix_ms ? a.started_unix_ms > b.started_unix_ms
+                                                  : a.session_id < b.session_id;
   });
   return out;
 }
@@ -173,10 +173,10 @@ void SessionHub::OnComplete(LiveSession& session, const absl::Status& status) {
     absl::MutexLock lock(&mu_);
     sessions_.erase(session.id());
   }
-  const dance::v1::SessionSummary sum = session.Summary();
+  const SessionSummary sum = session.Summary();
   Log(status.ok() ? LogLevel::kInfo : LogLevel::kWarning, "session_end",
       {{"session", session.id()}, {"status", absl::StatusCodeToString(status.code())},
-       {"message", std::string(status.message())}, {"frames", sum.frames()}, {"audio_ms", sum.audio_ms()}});
+       {"message", status.message()}, {"frames", sum.frames}, {"audio_ms", sum.audio_ms}});
   NotifyServing();
 }
 

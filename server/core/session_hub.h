@@ -18,19 +18,19 @@
 #include <functional>
 #include <memory>
 #include <string>
-#include "absl/strings/string_view.h"
 #include <vector>
 
 #include "absl/base/thread_annotations.h"
 #include "absl/container/flat_hash_map.h"
 #include "absl/status/statusor.h"
+#include "absl/strings/string_view.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
-#include "dance/v1/dance.pb.h"
 #include "server/core/engine_port.h"
 #include "server/core/live_session.h"
 #include "server/core/metrics.h"
 #include "server/core/scheduler.h"
+#include "server/core/stream_request.h"
 
 namespace dance::server {
 
@@ -57,7 +57,7 @@ class SessionHub {
                                                      std::string client_name);
   // nullptr if no live session has this id.
   std::shared_ptr<LiveSession> Find(absl::string_view id) const;
-  std::vector<dance::v1::SessionSummary> List() const;  // newest first
+  std::vector<SessionSummary> List() const;  // newest first
   int active_sessions() const;
   const ModelDescription& model() const { return backend_->Describe(); }
   const HubOptions& options() const { return options_; }

@@ -1,49 +1,41 @@
-// Conversions between the wire (dance.v1 protos, WebSocket JSON) and the server's engine-facing types,
-// with the protocol's validation rules. Pure functions; thread-safe.
+// The gRPC transport's encoding: conversions between the dance.v1 protos and the core's types
+// (server/core/). Requests come in as StreamRequest / ControlRequest and are validated by the core's rules
+// (stream_request.h); updates, session summaries and the model go out as protos. The one place that maps
+// between dance.v1 messages and the core. Pure functions; thread-safe.
+//
+// Usage:
+//   ASSIGN_OR_RETURN(ValidatedStream v, ValidateHeader(request.header(), hub.model(), limits));
+//   const dance::v1::DanceUpdate& wire = UpdateToProto(*update, /*with_rotations=*/true);
 #ifndef DANCE_SERVER_GRPC_CONVERT_H_
 #define DANCE_SERVER_GRPC_CONVERT_H_
 
-#include <optional>
-#include <string>
-
 #include "absl/status/statusor.h"
 #include "dance/v1/dance.pb.h"
-#include "nlohmann/json.hpp"
 #include "server/core/engine_port.h"
 #include "server/core/live_session.h"
+#include "server/core/stream_request.h"
+#include "server/core/update.h"
 
 namespace dance::server {
 
-struct StreamLimits {
-  int min_sample_rate_hz = 8000;
-  int max_sample_rate_hz = 96000;
-  int max_channels = 8;
-  int max_chunk_samples = 48000;  // sample frames per chunk
-};
-
-struct ValidatedHeader {
-  StreamConfig config;
-  PcmFormat format = PcmFormat::kF32Le;
-  std::string client_name;
-  bool omit_rotations = false;
-};
-
-// INVALID_ARGUMENT with a message naming the field for any out-of-range value or unknown style.
-absl::StatusOr<ValidatedHeader> ValidateHeader(const dance::v1::StreamHeader& header, const ModelDescription& model,
+// ---- in ----
+StyleMix StyleFromProto(const google::protobuf::RepeatedPtrField<dance::v1::StyleWeight>& style);
+SamplingRequest SamplingFromProto(const dance::v1::Sampling& sampling);
+StreamRequest StreamRequestFromProto(const dance::v1::StreamHeader& header);
+ControlRequest ControlRequestFromProto(const dance::v1::Control& control);
+// ValidateStream(StreamRequestFromProto(header), ...): INVALID_ARGUMENT naming the field.
+absl::StatusOr<ValidatedStream> ValidateHeader(const dance::v1::StreamHeader& header, const ModelDescription& model,
                                                const StreamLimits& limits);
-absl::StatusOr<StyleMix> StyleFromProto(const google::protobuf::RepeatedPtrField<dance::v1::StyleWeight>& style,
-                                        const ModelDescription& model);
-absl::StatusOr<SamplingConfig> SamplingFromProto(const dance::v1::Sampling& sampling);
-// Checks a chunk's size against the limits and whole-sample-frame alignment.
-absl::Status ValidateChunk(size_t pcm_bytes, const ValidatedHeader& header, const StreamLimits& limits);
 
-// WebSocket JSON -> proto: {"type":"start", ...} to a StreamHeader, {"type":"control", ...} to a Control.
-absl::StatusOr<dance::v1::StreamHeader> HeaderFromJson(const nlohmann::json& start);
-absl::StatusOr<dance::v1::Control> ControlFromJson(const nlohmann::json& control);
-// Proto -> WebSocket JSON text (docs/protocol.md section 3).
-std::string UpdateToJson(const dance::v1::DanceUpdate& update);
-nlohmann::json ModelToJson(const ModelDescription& model);
-nlohmann::json SummaryToJson(const dance::v1::SessionSummary& summary);
+// ---- out ----
+// The update as a DanceUpdate: built on first use and kept on the update (update.h), so every gRPC call
+// that sends it shares one message; valid while the update lives. Without rotations a frame's rotations
+// are left empty (StreamHeader.omit_rotations); other kinds are the same either way.
+const dance::v1::DanceUpdate& UpdateToProto(const Update& update, bool with_rotations);
+void SummaryToProto(const SessionSummary& summary, dance::v1::SessionSummary* out);
+void SkeletonToProto(const ModelDescription& model, dance::v1::Skeleton* out);
+// Everything ModelInfo says about the model (not the server's limits or load).
+void ModelToProto(const ModelDescription& model, dance::v1::ModelInfo* out);
 
 }  // namespace dance::server
 

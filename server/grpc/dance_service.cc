@@ -1,11 +1,11 @@
 #include "server/grpc/dance_service.h"
 
 #include <memory>
-#include <optional>
 #include <utility>
 
 #include "absl/strings/str_cat.h"
 #include "absl/time/clock.h"
+#include "server/grpc/convert.h"
 #include "server/grpc/stream_writer.h"
 #include "server/log.h"
 
@@ -91,7 +91,7 @@ class PerformReactor final : public grpc::ServerBidiReactor<PerformRequest, Danc
     switch (request_.kind_case()) {
       case PerformRequest::kHeader: {
         if (session() != nullptr) return absl::InvalidArgumentError("StreamHeader sent twice");
-        absl::StatusOr<ValidatedHeader> h =
+        absl::StatusOr<ValidatedStream> h =
             ValidateHeader(request_.header(), service_->hub()->model(), service_->options().limits);
         if (!h.ok()) return h.status();
         header_ = *std::move(h);
@@ -129,19 +129,10 @@ class PerformReactor final : public grpc::ServerBidiReactor<PerformRequest, Danc
       }
       case PerformRequest::kControl: {
         if (session() == nullptr) return absl::InvalidArgumentError("control before the StreamHeader");
-        std::optional<StyleMix> style;
-        std::optional<SamplingConfig> sampling;
-        if (request_.control().style_size() > 0) {
-          absl::StatusOr<StyleMix> m = StyleFromProto(request_.control().style(), service_->hub()->model());
-          if (!m.ok()) return m.status();
-          style = *std::move(m);
-        }
-        if (request_.control().has_sampling()) {
-          absl::StatusOr<SamplingConfig> sc = SamplingFromProto(request_.control().sampling());
-          if (!sc.ok()) return sc.status();
-          sampling = *sc;
-        }
-        absl::Status q = session()->EnqueueControl(std::move(style), sampling);
+        absl::StatusOr<ValidatedControl> c =
+            ValidateControl(ControlRequestFromProto(request_.control()), service_->hub()->model());
+        if (!c.ok()) return c.status();
+        absl::Status q = session()->EnqueueControl(std::move(c->style), c->sampling);
         // A control racing the session's end is harmless ("any time after the header"): ignore it.
         if (q.code() == absl::StatusCode::kFailedPrecondition) return absl::OkStatus();
         return q;
@@ -167,14 +158,14 @@ class PerformReactor final : public grpc::ServerBidiReactor<PerformRequest, Danc
       writer_->Close(status);
     }
     Log(LogLevel::kInfo, "perform_rejected",
-        {{"status", absl::StatusCodeToString(status.code())}, {"message", std::string(status.message())}});
+        {{"status", absl::StatusCodeToString(status.code())}, {"message", status.message()}});
   }
 
   DanceServiceImpl* const service_;
   grpc::CallbackServerContext* const context_;
   std::shared_ptr<Writer> writer_;
   PerformRequest request_;
-  ValidatedHeader header_;
+  ValidatedStream header_;
   mutable absl::Mutex session_mu_;
   std::shared_ptr<LiveSession> session_ ABSL_GUARDED_BY(session_mu_);  // set once, by the read path
   bool paused_ = false;  // reactor-thread only
@@ -261,7 +252,7 @@ grpc::ServerUnaryReactor* DanceServiceImpl::ListSessions(grpc::CallbackServerCon
     reactor->Finish(ToGrpcStatus(auth));
     return reactor;
   }
-  for (auto& s : hub_->List()) *response->add_sessions() = std::move(s);
+  for (const SessionSummary& s : hub_->List()) SummaryToProto(s, response->add_sessions());
   reactor->Finish(grpc::Status::OK);
   return reactor;
 }
@@ -275,20 +266,10 @@ grpc::ServerUnaryReactor* DanceServiceImpl::GetModelInfo(grpc::CallbackServerCon
     reactor->Finish(ToGrpcStatus(auth));
     return reactor;
   }
-  const ModelDescription& m = hub_->model();
-  response->set_model_id(m.model_id);
-  response->set_latency_ms(m.latency_ms);
-  response->set_fps(m.fps);
-  FillSkeleton(m, response->mutable_skeleton());
-  for (const std::string& s : m.styles) response->add_styles(s);
+  ModelToProto(hub_->model(), response);
   response->set_max_sessions(hub_->options().max_sessions);
   response->set_active_sessions(hub_->active_sessions());
   response->set_max_chunk_samples(options_.limits.max_chunk_samples);
-  response->set_default_period_lock(m.default_period_lock);
-  for (const auto& [style, lock] : m.style_period_lock) (*response->mutable_style_period_lock())[style] = lock;
-  response->set_default_guidance(m.default_guidance);
-  response->set_default_music_guidance(m.default_music_guidance);
-  response->set_default_top_p(m.default_top_p);
   reactor->Finish(grpc::Status::OK);
   return reactor;
 }

@@ -1,8 +1,9 @@
 // DanceServiceImpl: the gRPC callback service for dance.v1.DanceService.
 //
-// Perform and Watch are reactors that never block: Perform validates each message and queues it on its
-// LiveSession (the scheduler thread does the engine work); outgoing updates go through a StreamWriter.
-// Unary calls answer inline from the hub's registry.
+// The gRPC transport over the core (server/core/). Perform and Watch are reactors that never block:
+// Perform decodes and validates each message (convert.h, then the core's rules) and queues it on its
+// LiveSession (the scheduler thread does the engine work); outgoing updates go through a StreamWriter,
+// which sends them as protos. Unary calls answer inline from the hub's registry.
 //
 // Usage (see dance_server.cc):
 //   DanceServiceImpl service(&hub, &metrics, options);
@@ -22,7 +23,7 @@
 #include "dance/v1/dance.grpc.pb.h"
 #include "server/core/metrics.h"
 #include "server/core/session_hub.h"
-#include "server/grpc/convert.h"
+#include "server/core/stream_request.h"
 
 namespace dance::server {
 

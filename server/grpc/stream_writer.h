@@ -12,6 +12,11 @@
 // after EndOfAudio" is INVALID_ARGUMENT however fast the session completed. Lossy mode (viewers): at most `limit` frames are queued;
 // the oldest queued frame is dropped for a new one and the next frame sent carries dropped_before.
 //
+// Encoding: the writer sends each core update as its DanceUpdate (convert.h's UpdateToProto, with or
+// without rotations), encoded in Deliver on the delivering thread (for frames, the scheduler thread)
+// and shared with every other gRPC call that sends the same update; only a frame that carries
+// dropped_before is copied, for its one viewer.
+//
 // R must provide: void IssueWrite(const dance::v1::DanceUpdate*); void IssueRead(); void IssueFinish(grpc::Status).
 // Thread safety: all methods are thread-safe.
 #ifndef DANCE_SERVER_GRPC_STREAM_WRITER_H_
@@ -33,8 +38,10 @@
 #include "absl/synchronization/mutex.h"
 #include "absl/time/clock.h"
 #include "absl/time/time.h"
+#include "dance/v1/dance.pb.h"
 #include "server/core/frame_sink.h"
 #include "server/core/metrics.h"
+#include "server/grpc/convert.h"
 
 namespace dance::server {
 
@@ -51,14 +58,17 @@ class StreamWriter : public FrameSink, public std::enable_shared_from_this<Strea
       : reactor_(reactor), mode_(mode), limit_(limit), wants_rotations_(wants_rotations), metrics_(metrics) {}
 
   void Deliver(const UpdatePtr& update) override {
+    // Encoded here, before the lock: the first writer of the session to see an update builds its message,
+    // the others find it built; the write path below only reads it.
+    UpdateToProto(*update, WantsRotations());
     const dance::v1::DanceUpdate* write = nullptr;
     bool finish = false;
     {
       absl::MutexLock lock(&mu_);
       if (finish_issued_ || closing_) return;
-      if (mode_ == Mode::kLossy && update->has_frame() && queued_frames_ >= limit_) {
+      if (mode_ == Mode::kLossy && update->is_frame() && queued_frames_ >= limit_) {
         for (auto it = queue_.begin(); it != queue_.end(); ++it) {
-          if ((*it)->has_frame()) {
+          if ((*it)->is_frame()) {
             queue_.erase(it);
             --queued_frames_;
             ++dropped_pending_;
@@ -76,7 +86,7 @@ class StreamWriter : public FrameSink, public std::enable_shared_from_this<Strea
       }
       if (!closing_) {
         queue_.push_back(update);
-        if (update->has_frame()) ++queued_frames_;
+        if (update->is_frame()) ++queued_frames_;
         write = StartNextLocked();
       }
     }
@@ -143,7 +153,7 @@ class StreamWriter : public FrameSink, public std::enable_shared_from_this<Strea
     return true;
   }
 
-  bool WantsRotations() const override { return wants_rotations_.load(std::memory_order_relaxed); }
+  bool WantsRotations() const { return wants_rotations_.load(std::memory_order_relaxed); }
   // Set before the writer is attached to a session.
   void SetWantsRotations(bool wants) { wants_rotations_.store(wants, std::memory_order_relaxed); }
 
@@ -160,6 +170,7 @@ class StreamWriter : public FrameSink, public std::enable_shared_from_this<Strea
       absl::MutexLock lock(&mu_);
       writing_ = false;
       current_.reset();
+      current_copy_.reset();
       if (!ok && (!closing_ || close_status_.ok())) {
         // The client is gone. Even if the session already ended OK, the call did not: it never got the
         // rest of its updates (an OK close is replaced and counted here; otherwise the session counts it).
@@ -195,21 +206,21 @@ class StreamWriter : public FrameSink, public std::enable_shared_from_this<Strea
  private:
   const dance::v1::DanceUpdate* StartNextLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
     if (writing_ || queue_.empty() || finish_issued_) return nullptr;
-    UpdatePtr next = std::move(queue_.front());
+    current_ = std::move(queue_.front());
     queue_.pop_front();
-    if (next->has_frame()) {
+    const dance::v1::DanceUpdate* write = &UpdateToProto(*current_, WantsRotations());
+    if (current_->is_frame()) {
       --queued_frames_;
       if (dropped_pending_ > 0) {
-        auto copy = std::make_shared<dance::v1::DanceUpdate>(*next);
-        copy->mutable_frame()->set_dropped_before(dropped_pending_);
+        current_copy_ = std::make_unique<dance::v1::DanceUpdate>(*write);
+        current_copy_->mutable_frame()->set_dropped_before(dropped_pending_);
         dropped_pending_ = 0;
-        next = std::move(copy);
+        write = current_copy_.get();
       }
     }
-    current_ = std::move(next);
     writing_ = true;
     ++in_call_;
-    return current_.get();
+    return write;
   }
 
   bool ShouldFinishLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
@@ -261,7 +272,8 @@ class StreamWriter : public FrameSink, public std::enable_shared_from_this<Strea
   std::deque<UpdatePtr> queue_ ABSL_GUARDED_BY(mu_);
   size_t queued_frames_ ABSL_GUARDED_BY(mu_) = 0;
   int64_t dropped_pending_ ABSL_GUARDED_BY(mu_) = 0;
-  UpdatePtr current_ ABSL_GUARDED_BY(mu_);
+  UpdatePtr current_ ABSL_GUARDED_BY(mu_);  // the update being written (it owns the shared message)
+  std::unique_ptr<dance::v1::DanceUpdate> current_copy_ ABSL_GUARDED_BY(mu_);  // its copy with dropped_before
   bool writing_ ABSL_GUARDED_BY(mu_) = false;
   int in_call_ ABSL_GUARDED_BY(mu_) = 0;
   bool closing_ ABSL_GUARDED_BY(mu_) = false;

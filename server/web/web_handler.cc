@@ -14,6 +14,8 @@
 #include "absl/time/clock.h"
 #include "nlohmann/json.hpp"
 #include "server/log.h"
+#include "server/web/json_codec.h"
+#include "server/web/prometheus.h"
 #include "server/web/websocket.h"
 #include "server/web/ws_sink.h"
 
@@ -49,18 +51,16 @@ constexpr char kFallbackPage[] =
 // message (if any) and a close frame, then shuts the socket's read side so the reader thread wakes up.
 void WriterLoop(WsSink* sink, WebSocket* ws, int fd) {
   UpdatePtr u;
+  int64_t dropped_before = 0;
   absl::Status final;
+  std::string scratch;
   bool alive = true;
-  while (sink->Next(&u, &final)) {
-    if (alive && !ws->SendText(UpdateToJson(*u)).ok()) alive = false;  // keep draining; the reader notices
+  while (sink->Next(&u, &dropped_before, &final)) {
+    if (!alive) continue;  // keep draining; the reader notices
+    if (!ws->SendText(UpdateToJson(*u, sink->wants_rotations(), dropped_before, &scratch)).ok()) alive = false;
   }
   if (alive) {
-    if (!final.ok()) {
-      ws->SendText(json{{"type", "error"}, {"code", absl::StatusCodeToString(final.code())},
-                        {"message", std::string(final.message())}}
-                       .dump())
-          .IgnoreError();
-    }
+    if (!final.ok()) ws->SendText(ErrorToJson(final)).IgnoreError();
     const uint16_t code = final.ok() ? 1000 : (final.code() == absl::StatusCode::kInternal ? 1011 : 1008);
     ws->SendClose(code, final.ok() ? "end" : "error").IgnoreError();
   }
@@ -86,8 +86,8 @@ void WebHandler::Handle(const HttpRequest& req, HttpConnection& conn) {
   }
   if (req.path == "/metrics") {
     conn.Respond(200, "text/plain; version=0.0.4",
-                 metrics_->RenderPrometheus(hub_->active_sessions(), hub_->options().max_sessions,
-                                            hub_->draining()));
+                 RenderPrometheus(*metrics_, hub_->active_sessions(), hub_->options().max_sessions,
+                                  hub_->draining()));
     return;
   }
   if (req.path == "/healthz") {
@@ -173,8 +173,7 @@ void WebHandler::WatchSocket(const HttpRequest& req, HttpConnection& conn) {
   auto sink = std::make_shared<WsSink>(/*lossy=*/true, options_.viewer_queue_frames, true, metrics_);
   absl::Status st = session->AddViewer(sink);
   if (!st.ok()) {
-    ws.SendText(json{{"type", "error"}, {"code", absl::StatusCodeToString(st.code())},
-                     {"message", std::string(st.message())}}.dump()).IgnoreError();
+    ws.SendText(ErrorToJson(st)).IgnoreError();
     ws.SendClose(1008, "refused").IgnoreError();
     return;
   }
@@ -195,8 +194,7 @@ void WebHandler::PerformSocket(const HttpRequest& req, HttpConnection& conn) {
   WebSocket ws(conn.fd(), options_.max_ws_message_bytes);
   auto fail_early = [&](const absl::Status& st) {
     metrics_->CountError(st.code());
-    ws.SendText(json{{"type", "error"}, {"code", absl::StatusCodeToString(st.code())},
-                     {"message", std::string(st.message())}}.dump()).IgnoreError();
+    ws.SendText(ErrorToJson(st)).IgnoreError();
     ws.SendClose(1008, "error").IgnoreError();
   };
   // 1. The start message.
@@ -207,9 +205,9 @@ void WebHandler::PerformSocket(const HttpRequest& req, HttpConnection& conn) {
   if (!start.is_object() || start.value("type", "") != "start") {
     return fail_early(absl::InvalidArgumentError("first message must be {\"type\": \"start\", ...}"));
   }
-  absl::StatusOr<dance::v1::StreamHeader> header = HeaderFromJson(start);
-  if (!header.ok()) return fail_early(header.status());
-  absl::StatusOr<ValidatedHeader> valid = ValidateHeader(*header, hub_->model(), options_.limits);
+  absl::StatusOr<StreamRequest> request = StreamRequestFromJson(start);
+  if (!request.ok()) return fail_early(request.status());
+  absl::StatusOr<ValidatedStream> valid = ValidateStream(*request, hub_->model(), options_.limits);
   if (!valid.ok()) return fail_early(valid.status());
   absl::StatusOr<std::shared_ptr<LiveSession>> admitted =
       hub_->Admit(valid->config, valid->format, valid->client_name.empty() ? "websocket" : valid->client_name);
@@ -261,30 +259,17 @@ void WebHandler::PerformSocket(const HttpRequest& req, HttpConnection& conn) {
       error = session->EnqueueEnd(absl::Now());
       ended = true;
     } else if (type == "control") {
-      absl::StatusOr<dance::v1::Control> c = ControlFromJson(j);
+      absl::StatusOr<ControlRequest> control = ControlRequestFromJson(j);
+      if (!control.ok()) {
+        error = control.status();
+        break;
+      }
+      absl::StatusOr<ValidatedControl> c = ValidateControl(*control, hub_->model());
       if (!c.ok()) {
         error = c.status();
         break;
       }
-      std::optional<StyleMix> style;
-      std::optional<SamplingConfig> sampling;
-      if (c->style_size() > 0) {
-        absl::StatusOr<StyleMix> mix = StyleFromProto(c->style(), hub_->model());
-        if (!mix.ok()) {
-          error = mix.status();
-          break;
-        }
-        style = *mix;
-      }
-      if (c->has_sampling()) {
-        absl::StatusOr<SamplingConfig> sc = SamplingFromProto(c->sampling());
-        if (!sc.ok()) {
-          error = sc.status();
-          break;
-        }
-        sampling = *sc;
-      }
-      error = session->EnqueueControl(style, sampling);
+      error = session->EnqueueControl(std::move(c->style), c->sampling);
     } else {
       error = absl::InvalidArgumentError("expected a binary audio message or a JSON control/end message");
     }

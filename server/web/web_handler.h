@@ -1,5 +1,7 @@
 // WebHandler: the dance server's HTTP routes (docs/protocol.md section 2): static files from the web root,
 // /metrics, /api/sessions, /api/model, /healthz, and the WebSocket endpoints /ws/watch and /ws/perform.
+// The web transport over the core (server/core/): it decodes and encodes the browser's JSON itself
+// (json_codec.h) and validates with the core's rules; no proto is involved.
 //
 // Each WebSocket uses its HTTP connection thread to read and one extra thread to write, so a slow browser
 // blocks only its own writer; a watcher's queue drops old frames, a performer's fails when it overflows.
@@ -17,7 +19,7 @@
 
 #include "server/core/metrics.h"
 #include "server/core/session_hub.h"
-#include "server/grpc/convert.h"
+#include "server/core/stream_request.h"
 #include "server/web/http_server.h"
 
 namespace dance::server {

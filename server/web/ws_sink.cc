@@ -1,6 +1,6 @@
 #include "server/web/ws_sink.h"
 
-#include <memory>
+#include <utility>
 
 #include "absl/strings/str_cat.h"
 
@@ -9,9 +9,9 @@ namespace dance::server {
 void WsSink::Deliver(const UpdatePtr& update) {
   absl::MutexLock lock(&mu_);
   if (closed_) return;
-  if (lossy_ && update->has_frame() && frames_ >= limit_) {
+  if (lossy_ && update->is_frame() && frames_ >= limit_) {
     for (auto it = queue_.begin(); it != queue_.end(); ++it) {
-      if ((*it)->has_frame()) {
+      if ((*it)->is_frame()) {
         queue_.erase(it);
         --frames_;
         ++dropped_;
@@ -27,7 +27,7 @@ void WsSink::Deliver(const UpdatePtr& update) {
     return;
   }
   queue_.push_back(update);
-  if (update->has_frame()) ++frames_;
+  if (update->is_frame()) ++frames_;
 }
 
 void WsSink::Close(const absl::Status& status) {
@@ -46,7 +46,7 @@ size_t WsSink::Backlog() const {
   return queue_.size();
 }
 
-bool WsSink::Next(UpdatePtr* update, absl::Status* final) {
+bool WsSink::Next(UpdatePtr* update, int64_t* dropped_before, absl::Status* final) {
   absl::MutexLock lock(&mu_);
   auto ready = [this]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) { return !queue_.empty() || closed_; };
   mu_.Await(absl::Condition(&ready));
@@ -54,18 +54,14 @@ bool WsSink::Next(UpdatePtr* update, absl::Status* final) {
     *final = status_;
     return false;
   }
-  UpdatePtr next = std::move(queue_.front());
+  *update = std::move(queue_.front());
   queue_.pop_front();
-  if (next->has_frame()) {
+  *dropped_before = 0;
+  if ((*update)->is_frame()) {
     --frames_;
-    if (dropped_ > 0) {
-      auto copy = std::make_shared<dance::v1::DanceUpdate>(*next);
-      copy->mutable_frame()->set_dropped_before(dropped_);
-      dropped_ = 0;
-      next = std::move(copy);
-    }
+    *dropped_before = dropped_;
+    dropped_ = 0;
   }
-  *update = std::move(next);
   return true;
 }
 

@@ -1,5 +1,6 @@
 // WsSink: the FrameSink of one WebSocket connection. The scheduler Delivers without blocking; the
-// connection's writer thread takes updates with Next() and sends them as JSON text messages.
+// connection's writer thread takes updates with Next() and sends them as JSON text messages
+// (json_codec.h's UpdateToJson, so the text of an update is built once for every socket that sends it).
 //
 // Lossy (viewers): at most `limit` frames queued, the oldest dropped first (counted in dropped_before of the
 // next frame sent). Lossless (performers): over `limit` queued updates the sink closes itself with
@@ -9,12 +10,15 @@
 #define DANCE_SERVER_WEB_WS_SINK_H_
 
 #include <cstddef>
+#include <cstdint>
 #include <deque>
 
 #include "absl/base/thread_annotations.h"
+#include "absl/status/status.h"
 #include "absl/synchronization/mutex.h"
 #include "server/core/frame_sink.h"
 #include "server/core/metrics.h"
+#include "server/core/update.h"
 
 namespace dance::server {
 
@@ -25,11 +29,13 @@ class WsSink : public FrameSink {
 
   void Deliver(const UpdatePtr& update) override;
   void Close(const absl::Status& status) override;
-  bool WantsRotations() const override { return wants_rotations_; }
   size_t Backlog() const override;
+  // Whether frames are sent with their rotations.
+  bool wants_rotations() const { return wants_rotations_; }
 
-  // Blocks until an update is ready (true) or the sink is closed and drained (false, *final = the status).
-  bool Next(UpdatePtr* update, absl::Status* final);
+  // Blocks until an update is ready (true; *dropped_before = frames dropped just before it, 0 for
+  // anything but a frame) or the sink is closed and drained (false, *final = the status).
+  bool Next(UpdatePtr* update, int64_t* dropped_before, absl::Status* final);
 
  private:
   const bool lossy_;

@@ -12,7 +12,10 @@
 #include "server/core/live_session.h"
 #include "server/core/metrics.h"
 #include "server/core/scheduler.h"
+#include "server/core/update.h"
 #include "server/grpc/convert.h"
+#include "server/web/json_codec.h"
+#include "server/web/prometheus.h"
 #include "server/web/websocket.h"
 #include "server/web/ws_sink.h"
 
@@ -129,40 +132,45 @@ TEST(Convert, ChunksMustBeWholeFramesWithinTheLimit) {
 }
 
 TEST(Convert, JsonStartAndControl) {
-  auto h = HeaderFromJson(nlohmann::json::parse(
+  auto h = StreamRequestFromJson(nlohmann::json::parse(
       R"({"type":"start","sample_rate":48000,"channels":1,"style":"popping","temperature":0.5,"seed":9})"));
   ASSERT_TRUE(h.ok());
-  EXPECT_EQ(h->sample_rate_hz(), 48000);
-  EXPECT_EQ(h->seed(), 9u);
-  ASSERT_EQ(h->style_size(), 1);
-  EXPECT_EQ(h->style(0).name(), "popping");
-  EXPECT_FLOAT_EQ(h->sampling().temperature(), 0.5f);
-  EXPECT_FALSE(h->sampling().has_period_lock());  // absent: the model's default
-  EXPECT_EQ(h->sampling().guidance(), 0.0f);       // absent: 0, the model's default
-  EXPECT_EQ(h->sampling().top_p(), 0.0f);
-  h = HeaderFromJson(nlohmann::json::parse(R"({"type":"start","sample_rate":48000,"guidance":1,"top_p":0.9})"));
+  EXPECT_EQ(h->sample_rate_hz, 48000);
+  EXPECT_EQ(h->seed, 9u);
+  ASSERT_EQ(h->style.size(), 1u);
+  EXPECT_EQ(h->style[0].first, "popping");
+  ASSERT_TRUE(h->sampling.has_value());
+  EXPECT_FLOAT_EQ(h->sampling->temperature, 0.5f);
+  EXPECT_FALSE(h->sampling->period_lock.has_value());  // absent: the model's default
+  EXPECT_EQ(h->sampling->guidance, 0.0f);              // absent: 0, the model's default
+  EXPECT_EQ(h->sampling->top_p, 0.0f);
+  h = StreamRequestFromJson(nlohmann::json::parse(R"({"type":"start","sample_rate":48000,"guidance":1,"top_p":0.9})"));
   ASSERT_TRUE(h.ok());
-  EXPECT_EQ(h->sampling().guidance(), 1.0f);
-  EXPECT_FLOAT_EQ(h->sampling().top_p(), 0.9f);
-  EXPECT_FALSE(h->sampling().has_music_guidance());  // absent: the model's default
-  h = HeaderFromJson(nlohmann::json::parse(R"({"type":"start","sample_rate":48000,"music_guidance":0.5})"));
+  ASSERT_TRUE(h->sampling.has_value());
+  EXPECT_EQ(h->sampling->guidance, 1.0f);
+  EXPECT_FLOAT_EQ(h->sampling->top_p, 0.9f);
+  EXPECT_FALSE(h->sampling->music_guidance.has_value());  // absent: the model's default
+  h = StreamRequestFromJson(nlohmann::json::parse(R"({"type":"start","sample_rate":48000,"music_guidance":0.5})"));
   ASSERT_TRUE(h.ok());
-  ASSERT_TRUE(h->sampling().has_music_guidance());
-  EXPECT_EQ(h->sampling().music_guidance(), 0.5f);
-  EXPECT_FALSE(HeaderFromJson(nlohmann::json::parse(R"({"sample_rate":48000,"music_guidance":"less"})")).ok());
-  h = HeaderFromJson(nlohmann::json::parse(R"({"type":"start","sample_rate":48000,"period_lock":0})"));
+  ASSERT_TRUE(h->sampling.has_value());
+  ASSERT_TRUE(h->sampling->music_guidance.has_value());
+  EXPECT_EQ(*h->sampling->music_guidance, 0.5f);
+  EXPECT_FALSE(StreamRequestFromJson(nlohmann::json::parse(R"({"sample_rate":48000,"music_guidance":"less"})")).ok());
+  h = StreamRequestFromJson(nlohmann::json::parse(R"({"type":"start","sample_rate":48000,"period_lock":0})"));
   ASSERT_TRUE(h.ok());
-  ASSERT_TRUE(h->sampling().has_period_lock());
-  EXPECT_EQ(h->sampling().period_lock(), 0.0f);
-  EXPECT_FALSE(h->raw_feet());
-  h = HeaderFromJson(nlohmann::json::parse(R"({"type":"start","sample_rate":48000,"raw_feet":true})"));
+  ASSERT_TRUE(h->sampling.has_value());
+  ASSERT_TRUE(h->sampling->period_lock.has_value());
+  EXPECT_EQ(*h->sampling->period_lock, 0.0f);
+  EXPECT_FALSE(h->raw_feet);
+  h = StreamRequestFromJson(nlohmann::json::parse(R"({"type":"start","sample_rate":48000,"raw_feet":true})"));
   ASSERT_TRUE(h.ok());
-  EXPECT_TRUE(h->raw_feet());
-  EXPECT_FALSE(HeaderFromJson(nlohmann::json::parse(R"({"sample_rate":"fast"})")).ok());
-  auto c = ControlFromJson(nlohmann::json::parse(R"({"type":"control","style":[{"name":"breaking","weight":2}]})"));
+  EXPECT_TRUE(h->raw_feet);
+  EXPECT_FALSE(StreamRequestFromJson(nlohmann::json::parse(R"({"sample_rate":"fast"})")).ok());
+  auto c = ControlRequestFromJson(
+      nlohmann::json::parse(R"({"type":"control","style":[{"name":"breaking","weight":2}]})"));
   ASSERT_TRUE(c.ok());
-  EXPECT_EQ(c->style(0).weight(), 2.0f);
-  EXPECT_FALSE(c->has_sampling());
+  EXPECT_EQ(c->style[0].second, 2.0f);
+  EXPECT_FALSE(c->sampling.has_value());
   ModelDescription m = Model();
   m.default_guidance = 3.0f;
   m.default_top_p = 0.9f;
@@ -176,12 +184,21 @@ TEST(Convert, JsonStartAndControl) {
   EXPECT_EQ(mj["default_music_guidance"].get<float>(), 0.5f);
 }
 
+UpdatePtr Frame(int64_t index, double time_s) {
+  FrameUpdate f{};
+  f.pose.index = index;
+  f.pose.time_s = time_s;
+  f.pose.positions.fill(0.5f);
+  f.pose.rotations.fill(1.0f);
+  f.pose.upper_code = 3;
+  f.pose.lower_code = 7;
+  return std::make_shared<const Update>(f);
+}
+
 TEST(Convert, FrameJsonHasTheDocumentedFields) {
-  dance::v1::DanceUpdate u;
-  u.mutable_frame()->set_index(4);
-  u.mutable_frame()->set_time_ms(133.25);
-  for (int i = 0; i < 72; ++i) u.mutable_frame()->add_positions(0.5f);
-  auto j = nlohmann::json::parse(UpdateToJson(u));
+  const UpdatePtr u = Frame(4, 0.13325);
+  std::string scratch;
+  auto j = nlohmann::json::parse(UpdateToJson(*u, /*with_rotations=*/true, 0, &scratch));
   EXPECT_EQ(j["type"], "frame");
   EXPECT_EQ(j["index"], 4);
   EXPECT_EQ(j["time_ms"], 133.25);
@@ -197,7 +214,7 @@ TEST(Metrics, HistogramBucketsAreCumulative) {
   hist.Observe(0.005);
   hist.Observe(5.0);
   std::string out;
-  hist.Render("x", "help", &out);
+  RenderHistogram(hist, "x", "help", &out);
   EXPECT_TRUE(absl::StrContains(out, "x_bucket{le=\"0.001\"} 1\n"));
   EXPECT_TRUE(absl::StrContains(out, "x_bucket{le=\"0.01\"} 3\n"));
   EXPECT_TRUE(absl::StrContains(out, "x_bucket{le=\"0.1\"} 3\n"));
@@ -210,15 +227,15 @@ TEST(Metrics, ErrorsAreCountedByKind) {
   ServerMetrics m;
   m.CountError(absl::StatusCode::kResourceExhausted);
   m.CountError(absl::StatusCode::kResourceExhausted);
-  const std::string text = m.RenderPrometheus(3, 10, false);
+  const std::string text = RenderPrometheus(m, 3, 10, false);
   EXPECT_TRUE(absl::StrContains(text, "dance_errors_total{kind=\"resource_exhausted\"} 2\n"));
   EXPECT_TRUE(absl::StrContains(text, "dance_sessions_active 3\n"));
 }
 
 UpdatePtr Frame(int64_t index) {
-  auto u = std::make_shared<dance::v1::DanceUpdate>();
-  u->mutable_frame()->set_index(index);
-  return u;
+  FrameUpdate f{};
+  f.pose.index = index;
+  return std::make_shared<const Update>(f);
 }
 
 TEST(WsSink, LossyKeepsTheNewestFramesAndCountsDrops) {
@@ -227,14 +244,15 @@ TEST(WsSink, LossyKeepsTheNewestFramesAndCountsDrops) {
   for (int i = 0; i < 5; ++i) sink.Deliver(Frame(i));
   sink.Close(absl::OkStatus());
   UpdatePtr u;
+  int64_t dropped_before = -1;
   absl::Status final;
-  ASSERT_TRUE(sink.Next(&u, &final));
-  EXPECT_EQ(u->frame().index(), 3);
-  EXPECT_EQ(u->frame().dropped_before(), 3);
-  ASSERT_TRUE(sink.Next(&u, &final));
-  EXPECT_EQ(u->frame().index(), 4);
-  EXPECT_EQ(u->frame().dropped_before(), 0);
-  EXPECT_FALSE(sink.Next(&u, &final));
+  ASSERT_TRUE(sink.Next(&u, &dropped_before, &final));
+  EXPECT_EQ(u->frame()->pose.index, 3);
+  EXPECT_EQ(dropped_before, 3);
+  ASSERT_TRUE(sink.Next(&u, &dropped_before, &final));
+  EXPECT_EQ(u->frame()->pose.index, 4);
+  EXPECT_EQ(dropped_before, 0);
+  EXPECT_FALSE(sink.Next(&u, &dropped_before, &final));
   EXPECT_TRUE(final.ok());
   EXPECT_EQ(m.viewer_frames_dropped_total.load(), 3u);
 }
@@ -244,8 +262,9 @@ TEST(WsSink, LosslessOverflowFailsWithResourceExhausted) {
   WsSink sink(/*lossy=*/false, /*limit=*/3, true, &m);
   for (int i = 0; i < 4; ++i) sink.Deliver(Frame(i));
   UpdatePtr u;
+  int64_t dropped_before = 0;
   absl::Status final;
-  EXPECT_FALSE(sink.Next(&u, &final));
+  EXPECT_FALSE(sink.Next(&u, &dropped_before, &final));
   EXPECT_EQ(final.code(), absl::StatusCode::kResourceExhausted);
 }
 

@@ -1,0 +1,187 @@
+#include "server/web/json_codec.h"
+
+#include <optional>
+#include <utility>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+
+namespace dance::server {
+namespace {
+
+using nlohmann::json;
+
+// Two wire forms per update: frames with and without rotations. Other kinds always use the first.
+int JsonSlot(bool with_rotations) {
+  static const int full = ReserveEncodingSlot();
+  static const int bare = ReserveEncodingSlot();
+  return with_rotations ? full : bare;
+}
+
+// An absent key leaves *out as it is.
+template <typename T>
+absl::Status Number(const json& j, const char* key, T* out) {
+  if (!j.contains(key)) return absl::OkStatus();
+  if (!j[key].is_number()) return absl::InvalidArgumentError(absl::StrCat("'", key, "' must be a number"));
+  *out = j[key].get<T>();
+  return absl::OkStatus();
+}
+
+// "style": "name" or [{"name": ..., "weight": ...}, ...] (weight 1 when absent or not a number).
+absl::StatusOr<StyleMix> StyleFromJson(const json& j) {
+  StyleMix mix;
+  if (j.is_string()) {
+    mix.emplace_back(j.get<std::string>(), 1.0f);
+    return mix;
+  }
+  if (!j.is_array()) return absl::InvalidArgumentError("style must be a string or a list of {name, weight}");
+  for (const json& e : j) {
+    if (!e.is_object() || !e.contains("name") || !e["name"].is_string()) {
+      return absl::InvalidArgumentError("style entries need a string 'name'");
+    }
+    mix.emplace_back(e["name"].get<std::string>(),
+                     e.contains("weight") && e["weight"].is_number() ? e["weight"].get<float>() : 1.0f);
+  }
+  return mix;
+}
+
+// The sampling keys of a start or control message; nullopt if it has none. A key of the wrong type is
+// an error (the first one, in the order below).
+absl::StatusOr<std::optional<SamplingRequest>> SamplingFromJson(const json& j) {
+  bool any = false;
+  for (const char* key : {"temperature", "top_k", "top_p", "guidance", "period_lock", "music_guidance"}) {
+    if (j.contains(key)) any = true;
+  }
+  SamplingRequest s;  // temperature 1; top_p and guidance 0, the model's defaults
+  absl::Status st;
+  st.Update(Number(j, "temperature", &s.temperature));
+  st.Update(Number(j, "top_k", &s.top_k));
+  st.Update(Number(j, "top_p", &s.top_p));
+  st.Update(Number(j, "guidance", &s.guidance));
+  if (j.contains("period_lock")) {  // absent: the model's default
+    float lock = 0.0f;
+    st.Update(Number(j, "period_lock", &lock));
+    s.period_lock = lock;
+  }
+  if (j.contains("music_guidance")) {  // absent: the model's default
+    float m = 1.0f;
+    st.Update(Number(j, "music_guidance", &m));
+    s.music_guidance = m;
+  }
+  if (!st.ok()) return st;
+  if (!any) return std::optional<SamplingRequest>();
+  return std::optional<SamplingRequest>(s);
+}
+
+const char* EventKindName(EventKind kind) {
+  return kind == EventKind::kControlApplied ? "control_applied" : "warning";
+}
+
+std::string Encode(const Update& update, bool with_rotations, int64_t dropped_before) {
+  json j;
+  if (const InfoUpdate* info = update.info()) {
+    const ModelDescription& m = info->model;
+    j = {{"type", "info"},           {"session_id", info->session_id}, {"model_id", m.model_id},
+         {"fps", m.fps},             {"latency_ms", m.latency_ms},     {"joint_names", m.joint_names},
+         {"parents", m.parents},     {"rest_offsets", m.rest_offsets}, {"styles", m.styles}};
+  } else if (const FrameUpdate* frame = update.frame()) {
+    const FrameData& f = frame->pose;
+    j = {{"type", "frame"},
+         {"index", f.index},
+         {"time_ms", f.time_s * 1000.0},
+         {"positions", f.positions},
+         {"rotations", with_rotations ? json(f.rotations) : json::array()},
+         {"upper_code", f.upper_code},
+         {"lower_code", f.lower_code},
+         {"dropped_before", dropped_before}};
+  } else if (const EventUpdate* e = update.event()) {
+    if (e->kind == EventKind::kBeat) {
+      j = {{"type", "beat"}, {"time_ms", e->time_ms}};
+    } else {
+      j = {{"type", "event"},
+           {"kind", EventKindName(e->kind)},
+           {"time_ms", e->time_ms},
+           {"frame_index", e->frame_index},
+           {"message", e->message}};
+    }
+  } else if (const EndUpdate* end = update.end()) {
+    j = {{"type", "end"}, {"frames", end->frames}, {"audio_ms", end->audio_ms}, {"reason", end->reason}};
+  } else {
+    j = {{"type", "unknown"}};
+  }
+  return j.dump(-1, ' ', false, json::error_handler_t::replace);
+}
+
+}  // namespace
+
+absl::StatusOr<StreamRequest> StreamRequestFromJson(const json& j) {
+  StreamRequest r;
+  r.channels = 1;
+  absl::Status st;
+  st.Update(Number(j, "sample_rate", &r.sample_rate_hz));
+  st.Update(Number(j, "channels", &r.channels));
+  st.Update(Number(j, "seed", &r.seed));
+  if (!st.ok()) return st;
+  r.format = PcmFormat::kF32Le;
+  if (j.contains("style")) {
+    absl::StatusOr<StyleMix> style = StyleFromJson(j["style"]);
+    if (!style.ok()) return style.status();
+    r.style = *std::move(style);
+  }
+  absl::StatusOr<std::optional<SamplingRequest>> sampling = SamplingFromJson(j);
+  if (!sampling.ok()) return sampling.status();
+  r.sampling = *sampling;
+  if (j.contains("client_name") && j["client_name"].is_string()) r.client_name = j["client_name"].get<std::string>();
+  if (j.contains("omit_rotations") && j["omit_rotations"].is_boolean()) r.omit_rotations = j["omit_rotations"].get<bool>();
+  if (j.contains("raw_feet") && j["raw_feet"].is_boolean()) r.raw_feet = j["raw_feet"].get<bool>();
+  return r;
+}
+
+absl::StatusOr<ControlRequest> ControlRequestFromJson(const json& j) {
+  ControlRequest c;
+  if (j.contains("style")) {
+    absl::StatusOr<StyleMix> style = StyleFromJson(j["style"]);
+    if (!style.ok()) return style.status();
+    c.style = *std::move(style);
+  }
+  absl::StatusOr<std::optional<SamplingRequest>> sampling = SamplingFromJson(j);
+  if (!sampling.ok()) return sampling.status();
+  c.sampling = *sampling;
+  return c;
+}
+
+absl::string_view UpdateToJson(const Update& update, bool with_rotations, int64_t dropped_before,
+                               std::string* scratch) {
+  if (dropped_before != 0 && update.is_frame()) {
+    *scratch = Encode(update, with_rotations, dropped_before);
+    return *scratch;
+  }
+  const bool rotations = with_rotations || !update.is_frame();  // one form for the other kinds
+  return update.Encoding<std::string>(JsonSlot(rotations), [&] { return Encode(update, rotations, 0); });
+}
+
+std::string ErrorToJson(const absl::Status& status) {
+  return json{{"type", "error"},
+              {"code", absl::StatusCodeToString(status.code())},
+              {"message", std::string(status.message())}}
+      .dump();
+}
+
+json ModelToJson(const ModelDescription& m) {
+  return json{{"model_id", m.model_id},       {"latency_ms", m.latency_ms}, {"fps", m.fps},
+              {"joint_names", m.joint_names}, {"parents", m.parents},       {"rest_offsets", m.rest_offsets},
+              {"styles", m.styles}, {"default_period_lock", m.default_period_lock},
+              {"style_period_lock", m.style_period_lock},
+              {"default_guidance", m.default_guidance}, {"default_top_p", m.default_top_p},
+              {"default_music_guidance", m.default_music_guidance}};
+}
+
+json SummaryToJson(const SessionSummary& s) {
+  json style = json::array();
+  for (const auto& [name, weight] : s.style) style.push_back({{"name", name}, {"weight", weight}});
+  return json{{"session_id", s.session_id}, {"client_name", s.client_name},
+              {"started_unix_ms", s.started_unix_ms}, {"frames", s.frames},
+              {"audio_ms", s.audio_ms}, {"viewers", s.viewers}, {"style", style}};
+}
+
+}  // namespace dance::server
