@@ -4,7 +4,7 @@
 // engine's public header (engine/engine.h). Everything the server needs from the engine is here: open a
 // stream, push audio, ask how many steps are ready, advance many streams in one batched step, collect pose
 // frames. The real implementation (LoadEngineBackend) wraps engine::Session; unit tests of the core may
-// supply a labelled test double.
+// supply a labelled test double (tests/server/testing/fake_engine.h).
 //
 // Usage:
 //   ASSIGN_OR_RETURN(std::unique_ptr<EngineBackend> backend, LoadEngineBackend("models/test-tiny.dncw"));
