@@ -9,6 +9,9 @@
 //     audio in, pose frames out, snapshot/restore; many sessions per weight pass.
 //   - SamplingOptions (nn/sampling.h): temperature, top-k/top-p, guidance, music guidance, locks.
 //   - StyleMix, ResolveStyle (runtime/style_mix.h): named style weights.
+//   - Controls, MotionTrack, TrajectoryPoint (runtime/controls.h): seed motion, given halves, keyframes,
+//     inpainting, trajectory; ReadMotionFile, ReadTrajectoryFile, ReadMaskFile (runtime/motion_io.h) read
+//     their files.
 //   - PoseFrame (runtime/pose_frame.h): one emitted frame (positions, rotations, codes).
 //   - WriteDanceJson, WriteBvh (runtime/dance_writer.h): whole-dance files.
 //   - audio::DecodeAudioFile (audio/decoder.h): audio files to PCM.
@@ -29,8 +32,10 @@
 
 #include "engine/audio/decoder.h"
 #include "engine/nn/sampling.h"
+#include "engine/runtime/controls.h"
 #include "engine/runtime/dance_writer.h"
 #include "engine/runtime/model.h"
+#include "engine/runtime/motion_io.h"
 #include "engine/runtime/pose_frame.h"
 #include "engine/runtime/session.h"
 #include "engine/runtime/style_mix.h"

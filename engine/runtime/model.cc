@@ -28,7 +28,14 @@ float StandingHeight(const Skeleton& skeleton) {
 
 // Each code decoded kCodeHeightSteps times in a row from a fresh state (all codes in one batch): the
 // height channel of the last frame.
-std::vector<float> HeldCodeHeights(const VqDecoder& lower) {
+// Each lower code decoded kCodeHeightSteps times in a row from a fresh state: its held pelvis height (the
+// last frame's) and its root motion (vx, vz, yaw rate: the last step's mean).
+struct HeldCodes {
+  std::vector<float> height;
+  std::vector<Eigen::Vector3f> motion;
+};
+
+HeldCodes HeldCodeProperties(const VqDecoder& lower) {
   const int k = lower.codebook_size();
   std::vector<int> codes(k);
   std::vector<VqDecoderState> states(k, lower.NewState());
@@ -41,9 +48,14 @@ std::vector<float> HeldCodeHeights(const VqDecoder& lower) {
   for (int step = 0; step + 1 < kCodeHeightSteps; ++step) lower.DecodeBatch(codes, state_ptrs, scratch);
   const auto frames = lower.DecodeBatch(codes, state_ptrs, scratch);
   const int fpc = lower.frames_per_code();
-  std::vector<float> height(k);
-  for (int i = 0; i < k; ++i) height[i] = frames(kLowerHeightIndex, (i + 1) * fpc - 1);
-  return height;
+  HeldCodes held;
+  held.height.resize(k);
+  held.motion.resize(k);
+  for (int i = 0; i < k; ++i) {
+    held.height[i] = frames(kLowerHeightIndex, (i + 1) * fpc - 1);
+    held.motion[i] = frames.block(kLowerHeightIndex - 3, i * fpc, 3, fpc).rowwise().mean();
+  }
+  return held;
 }
 
 // Reads `per` (metadata time_base.<key>, an object style name -> number) into `out` by style row: every name
@@ -116,7 +128,9 @@ absl::StatusOr<std::shared_ptr<const Model>> Model::FromWeights(const WeightsFil
   }
   DANCE_ASSIGN_OR_RETURN(m->skeleton_, Skeleton::FromMetadata(m->metadata_));
   m->standing_height_ = StandingHeight(m->skeleton_);
-  m->lower_code_height_ = HeldCodeHeights(m->lower_);
+  HeldCodes held = HeldCodeProperties(m->lower_);
+  m->lower_code_height_ = std::move(held.height);
+  m->lower_code_motion_ = std::move(held.motion);
   for (int i = 0; i < static_cast<int>(m->lower_code_height_.size()); ++i) {
     if (m->lower_code_height_[i] < m->crouch_height()) m->crouched_lower_codes_.push_back(i);
   }

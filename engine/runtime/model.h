@@ -128,6 +128,9 @@ class Model {
   // row from a fresh decoder state, the height channel of the last frame (the crouch guard's table;
   // docs/model.md section 6).
   const std::vector<float>& lower_code_height() const { return lower_code_height_; }
+  // Root motion of each lower-body code held the same way: (vx, vz) metres per (warped) frame in the
+  // body's facing frame and the yaw rate in radians per frame (the trajectory control ranks codes by it).
+  const std::vector<Eigen::Vector3f>& lower_code_motion() const { return lower_code_motion_; }
   // The pelvis height of the skeleton's rest pose (standing straight) above its lowest joint, metres.
   float standing_height() const { return standing_height_; }
   // Below this pelvis height a pose is crouched: kCrouchHeightFraction x standing_height().
@@ -166,6 +169,7 @@ class Model {
   float default_top_p_ = 1.0f;
   std::array<RowMatrix, 2> unit_codebook_;    // upper, lower
   std::vector<float> lower_code_height_;      // (K)
+  std::vector<Eigen::Vector3f> lower_code_motion_;  // (K) vx, vz, yaw rate
   float standing_height_ = 0.0f;
   std::vector<int> crouched_lower_codes_;
 };

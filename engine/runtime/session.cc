@@ -8,13 +8,15 @@
 
 namespace dance::engine {
 
-Session::Session(std::shared_ptr<const Model> model, const SessionOptions& options, TimeBase time)
+Session::Session(std::shared_ptr<const Model> model, const SessionOptions& options, TimeBase time,
+                 MotionControl control)
     : model_(std::move(model)),
       options_(options),
       time_(std::move(time)),
       policy_(*model_, options.seed, options.sampling),
       lanes_(*model_),
-      body_(*model_) {}
+      body_(*model_),
+      control_(std::move(control)) {}
 
 Session::~Session() = default;
 
@@ -24,7 +26,8 @@ absl::StatusOr<std::unique_ptr<Session>> Session::Create(std::shared_ptr<const M
   DANCE_RETURN_IF_ERROR(ValidateSamplingOptions(options.sampling));
   DANCE_ASSIGN_OR_RETURN(TimeBase time,
                          TimeBase::Create(*model, options.input_sample_rate, options.input_channels));
-  std::unique_ptr<Session> s(new Session(std::move(model), options, std::move(time)));
+  DANCE_ASSIGN_OR_RETURN(MotionControl control, MotionControl::Create(*model, options.controls));
+  std::unique_ptr<Session> s(new Session(std::move(model), options, std::move(time), std::move(control)));
   DANCE_RETURN_IF_ERROR(s->ApplyStyle(options.style));
   return s;
 }
@@ -58,7 +61,11 @@ void Session::EndOfAudio() {
 }
 
 void Session::FinishFrames(size_t first) {
-  for (size_t i = first; i < output_.size(); ++i) body_.Finish(output_[i], policy_.options().foot_lock);
+  for (size_t i = first; i < output_.size(); ++i) {
+    // The controls composite first; a frame whose lower body is given keeps its legs as given.
+    const bool lower_given = control_.Composite(output_[i]);
+    body_.Finish(output_[i], policy_.options().foot_lock && !lower_given);
+  }
 }
 
 void Session::EmitFrames(const Eigen::Ref<const Eigen::MatrixXf>& up, const Eigen::Ref<const Eigen::MatrixXf>& low) {
@@ -104,6 +111,7 @@ absl::StatusOr<SessionSnapshot> Session::Snapshot() const {
   s.sampling = policy_.state();
   s.lanes = lanes_.state();
   s.body = body_.state();
+  s.control = control_.state();
   s.output = output_;
   return s;
 }
@@ -120,6 +128,7 @@ absl::Status Session::Restore(const SessionSnapshot& s) {
   lanes_.Restore(s.lanes);
   body_.Restore(s.body);
   policy_.Restore(s.sampling);
+  control_.Restore(s.control);
   output_ = s.output;
   return absl::OkStatus();
 }
@@ -130,6 +139,7 @@ void Session::Reset() {
   policy_.Reset(options_.seed, options_.sampling, *style);
   lanes_.Reset(*style);
   body_.Reset();
+  control_.Reset();
   output_.clear();
 }
 
@@ -190,7 +200,15 @@ absl::Status StepBatch(absl::Span<Session* const> sessions) {
       const int lane = first_lane[slot++];
       if (lane < 0) continue;
       Session* s = sessions[i];
-      const auto [upper, lower] = s->policy_.Sample(s->lanes_.Logits(workspace, lane), s->body_.yaw());
+      StepControl control;
+      if (s->control_.active()) {
+        double first_real = 0.0, last_real = 0.0, rate = 1.0;
+        s->time_.EmittedRealSpan(s->lanes_.step() - 1, &first_real, &last_real, &rate);
+        control = s->control_.ForStep(first_real, last_real, s->body_.state().pose, rate,
+                                      s->body_.state().lower, s->lanes_.Logits(workspace, lane).cond.l);
+      }
+      const auto [upper, lower] = s->policy_.Sample(s->lanes_.Logits(workspace, lane), s->body_.yaw(),
+                                                    s->control_.active() ? &control : nullptr);
       s->lanes_.SetCodes(upper, lower);
       group.push_back(s);
     }

@@ -34,7 +34,8 @@
 // Parts: a Session is composed of parts that each own their state and its snapshot: TimeBase (audio
 // intake, features, the tempo clock and warped playback), SamplingPolicy (options, style, generator, the
 // period lock and crouch guard), SequenceLanes (the model's KV caches and Mamba states per guidance lane,
-// the last codes) and BodyDecoder (the VQ decoders' histories, the root, the foot lock). SessionSnapshot is
+// the last codes), BodyDecoder (the VQ decoders' histories, the root, the foot lock) and MotionControl
+// (the controls: forced and pulled codes, the trajectory's bias, the output compositing). SessionSnapshot is
 // the tuple of their states, so a part's new field is snapshotted, restored and reset with no edit here.
 //
 // Thread safety: a Session is not thread-safe (one owner at a time); different sessions may be used from
@@ -52,7 +53,9 @@
 #include "absl/status/statusor.h"
 #include "absl/types/span.h"
 #include "engine/nn/sampling.h"
+#include "engine/runtime/controls.h"
 #include "engine/runtime/internal/body_decoder.h"
+#include "engine/runtime/internal/motion_control.h"
 #include "engine/runtime/model.h"
 #include "engine/runtime/pose_frame.h"
 #include "engine/runtime/internal/sampling_policy.h"
@@ -68,6 +71,8 @@ struct SessionOptions {
   StyleMix style;                 // empty = "none"; weights >= 0, normalised to sum 1
   uint64_t seed = 0;
   SamplingOptions sampling;
+  // Seed motion, given halves, keyframes, inpainting, a trajectory (controls.h); empty = none.
+  Controls controls;
 };
 
 // Everything a Session remembers, as a copyable value: the parts' states (opaque to callers; valid only for
@@ -79,6 +84,7 @@ struct SessionSnapshot {
   SamplingState sampling;
   LaneState lanes;
   BodyState body;
+  MotionControlState control;
   std::vector<PoseFrame> output;  // frames produced and not popped yet
 };
 
@@ -140,7 +146,7 @@ class Session {
 
  private:
   friend absl::Status StepBatch(absl::Span<Session* const> sessions);
-  Session(std::shared_ptr<const Model> model, const SessionOptions& options, TimeBase time);
+  Session(std::shared_ptr<const Model> model, const SessionOptions& options, TimeBase time, MotionControl control);
 
   absl::Status ApplyStyle(const StyleMix& style);
   // After the VQ decoders ran: reconstructs and queues this step's frames ((45, 4) and (31, 4) features).
@@ -154,6 +160,7 @@ class Session {
   SamplingPolicy policy_;
   SequenceLanes lanes_;
   BodyDecoder body_;
+  MotionControl control_;
   std::vector<PoseFrame> output_;
 };
 

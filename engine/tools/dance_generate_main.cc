@@ -3,6 +3,13 @@
 //   dance-generate --audio FILE --out DANCE.json [--model M (default models/default.dncw)] [--seed S] [--style NAME[:W][,NAME:W...]]
 //                  [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--music-guidance M] [--period-lock B] [--chunk-samples N]
 //                  [--crouch-guard 0|1] [--foot-lock 0|1] [--bvh DANCE.bvh] [--quiet]
+//                  [--seed-motion FILE] [--given-upper FILE] [--given-lower FILE] [--keyframes FILE]
+//                  [--inpaint FILE --mask MASK.json] [--trajectory PATH.json]
+//
+// Controls (docs/controls.md): motion files are dance-motion/v1 JSON or BVH (SMPL joint names), placed on
+// the audio timeline by their audio_offset_s; --keyframes needs a dance-motion/v1 file with "times_s";
+// --trajectory reads dance-trajectory/v1, --mask dance-mask/v1. They combine (later ones win where two
+// give the same joint: inpaint, given halves, seed, keyframes).
 //
 // The audio is pushed in chunks of N input frames (default 4096; the dance does not depend on N), stepping
 // whenever a step is ready, exactly as a live stream would. Frames past the end of the audio are dropped.
@@ -36,6 +43,7 @@ struct Flags {
   uint64_t seed = 0;
   std::string style;
   SamplingOptions sampling;
+  std::string seed_motion, given_upper, given_lower, keyframes, inpaint, mask, trajectory;
   int64_t chunk_samples = 4096;
   bool quiet = false;
 };
@@ -44,7 +52,9 @@ constexpr char kUsage[] =
     "usage: dance-generate --audio FILE --out DANCE.json [--model M] [--seed S] [--style NAME[:W],...]\n"
     "                      [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--music-guidance M] [--period-lock B]\n"
     "                      [--chunk-samples N] [--crouch-guard 0|1] [--foot-lock 0|1]\n"
-    "                      [--bvh DANCE.bvh] [--quiet]\n";
+    "                      [--bvh DANCE.bvh] [--quiet]\n"
+    "                      [--seed-motion FILE] [--given-upper FILE] [--given-lower FILE] [--keyframes FILE]\n"
+    "                      [--inpaint FILE --mask MASK.json] [--trajectory PATH.json]\n";
 
 absl::Status ParseFlags(int argc, char** argv, Flags* f) {
   for (int i = 1; i < argc; ++i) {
@@ -67,6 +77,20 @@ absl::Status ParseFlags(int argc, char** argv, Flags* f) {
       f->model = v;
     } else if (arg == "--style") {
       f->style = v;
+    } else if (arg == "--seed-motion") {
+      f->seed_motion = v;
+    } else if (arg == "--given-upper") {
+      f->given_upper = v;
+    } else if (arg == "--given-lower") {
+      f->given_lower = v;
+    } else if (arg == "--keyframes") {
+      f->keyframes = v;
+    } else if (arg == "--inpaint") {
+      f->inpaint = v;
+    } else if (arg == "--mask") {
+      f->mask = v;
+    } else if (arg == "--trajectory") {
+      f->trajectory = v;
     } else if (arg == "--seed") {
       ok = absl::SimpleAtoi(v, &f->seed);
     } else if (arg == "--temperature") {
@@ -95,6 +119,7 @@ absl::Status ParseFlags(int argc, char** argv, Flags* f) {
     if (!ok) return absl::InvalidArgumentError(absl::StrCat("bad value for ", arg, ": '", v, "'"));
   }
   if (f->audio.empty() || f->out.empty()) return absl::InvalidArgumentError("--audio and --out are required");
+  if (f->inpaint.empty() != f->mask.empty()) return absl::InvalidArgumentError("--inpaint and --mask go together");
   return absl::OkStatus();
 }
 
@@ -111,6 +136,59 @@ absl::StatusOr<std::vector<std::pair<std::string, float>>> ParseStyle(const std:
     out.emplace_back(kv[0], w);
   }
   return out;
+}
+
+// The controls the flags name, combined into one Controls (`names` lists them for the dance file).
+absl::StatusOr<Controls> BuildControls(const Flags& f, double duration_s, std::vector<std::string>* names) {
+  Controls c;
+  auto with = [&](const std::string& path, const char* name) -> absl::StatusOr<MotionFile> {
+    names->push_back(name);
+    return ReadMotionFile(path);
+  };
+  if (!f.inpaint.empty()) {
+    absl::StatusOr<MotionFile> dance = with(f.inpaint, "inpaint");
+    if (!dance.ok()) return dance.status();
+    absl::StatusOr<std::vector<JointMask>> mask = ReadMaskFile(f.mask, *dance);
+    if (!mask.ok()) return mask.status();
+    c.motion = CombineTracks(c.motion, MaskedTrack(dance->positions, dance->first_frame, *mask));
+  }
+  for (const auto& [path, upper] : {std::pair{f.given_upper, true}, std::pair{f.given_lower, false}}) {
+    if (path.empty()) continue;
+    absl::StatusOr<MotionFile> m = with(path, upper ? "given_upper" : "given_lower");
+    if (!m.ok()) return m.status();
+    c.motion = CombineTracks(c.motion, GivenHalfTrack(m->positions, m->first_frame, upper));
+  }
+  if (!f.seed_motion.empty()) {
+    absl::StatusOr<MotionFile> m = with(f.seed_motion, "seed_motion");
+    if (!m.ok()) return m.status();
+    if (m->positions.size() < 4) {
+      return absl::InvalidArgumentError(absl::StrCat("'", f.seed_motion, "': a seed clip needs >= 4 frames"));
+    }
+    c.motion = CombineTracks(c.motion, SeedTrack(m->positions, m->first_frame));
+  }
+  if (!f.keyframes.empty()) {
+    absl::StatusOr<MotionFile> m = with(f.keyframes, "keyframes");
+    if (!m.ok()) return m.status();
+    if (m->times_s.empty()) {
+      return absl::InvalidArgumentError(absl::StrCat("'", f.keyframes, "': keyframes need \"times_s\""));
+    }
+    std::vector<int64_t> frames;
+    for (double t : m->times_s) frames.push_back(std::lround(t * 30.0));
+    absl::StatusOr<MotionTrack> keys = KeyframeTrack(m->positions, frames);
+    if (!keys.ok()) return absl::InvalidArgumentError(absl::StrCat("'", f.keyframes, "': ", keys.status().message()));
+    c.motion = CombineTracks(c.motion, *keys);
+  }
+  if (!f.trajectory.empty()) {
+    names->push_back("trajectory");
+    absl::StatusOr<std::vector<TrajectoryPoint>> path = ReadTrajectoryFile(f.trajectory);
+    if (!path.ok()) return path.status();
+    if (path->back().t_s > duration_s + 1.0) {
+      return absl::InvalidArgumentError(absl::StrCat("'", f.trajectory, "': the path runs to ", path->back().t_s,
+                                                     " s, past the song's ", duration_s, " s"));
+    }
+    c.trajectory = *path;
+  }
+  return c;
 }
 
 constexpr char kDefaultModel[] = "models/default.dncw";
@@ -137,6 +215,10 @@ absl::Status Run(Flags flags) {
   absl::StatusOr<std::vector<std::pair<std::string, float>>> style = ParseStyle(flags.style);
   if (!style.ok()) return style.status();
   options.style = *style;
+  std::vector<std::string> control_names;
+  absl::StatusOr<Controls> controls = BuildControls(flags, audio->duration_s(), &control_names);
+  if (!controls.ok()) return controls.status();
+  options.controls = *std::move(controls);
   absl::StatusOr<std::unique_ptr<Session>> session = Session::Create(*model, options);
   if (!session.ok()) return session.status();
   Session& s = **session;
@@ -178,6 +260,7 @@ absl::Status Run(Flags flags) {
                 {"audio_duration_s", duration},
                 {"latency_ms", s.LatencyMs()},
                 {"generator", "dance-generate"}};
+  if (!control_names.empty()) info.extra["controls"] = control_names;
   if (absl::Status st = WriteDanceJson(flags.out, (*model)->skeleton(), frames, info); !st.ok()) return st;
   if (!flags.bvh.empty()) {
     if (absl::Status st = WriteBvh(flags.bvh, (*model)->skeleton(), frames); !st.ok()) return st;

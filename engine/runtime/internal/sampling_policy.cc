@@ -40,7 +40,7 @@ size_t SamplingPolicy::lock_lag(int stream) const {
          static_cast<size_t>(std::max(1.0, std::round(state_.period_steps)));
 }
 
-std::pair<int, int> SamplingPolicy::Sample(const StepLogits& logits, double yaw) {
+std::pair<int, int> SamplingPolicy::Sample(const StepLogits& logits, double yaw, const StepControl* control) {
   SamplingState& s = state_;
   const int k = model_->config().codebook_size;
   const LaneLogits& cond = logits.cond;
@@ -78,8 +78,11 @@ std::pair<int, int> SamplingPolicy::Sample(const StepLogits& logits, double yaw)
       std::copy(cond.u, cond.u + k, guided_u_.begin());
       std::copy(cond.l, cond.l + k, guided_l_.begin());
     }
-    if (lock_u && PeriodMoves(0)) ApplyPeriodLock(0, absl::MakeSpan(guided_u_));
-    if (lock_l && PeriodMoves(1) && !PeriodTurned(s.heading_history, lock_lag(1))) {
+    // A stream the controls force or pull is not locked (the constraint is the stronger term).
+    const bool free_u = control == nullptr || (control->forced[0] < 0 && control->pull[0] < 0);
+    const bool free_l = control == nullptr || (control->forced[1] < 0 && control->pull[1] < 0);
+    if (lock_u && free_u && PeriodMoves(0)) ApplyPeriodLock(0, absl::MakeSpan(guided_u_));
+    if (lock_l && free_l && PeriodMoves(1) && !PeriodTurned(s.heading_history, lock_lag(1))) {
       ApplyPeriodLock(1, absl::MakeSpan(guided_l_));
     }
     lu = guided_u_;
@@ -92,10 +95,30 @@ std::pair<int, int> SamplingPolicy::Sample(const StepLogits& logits, double yaw)
     }
     for (int i : model_->crouched_lower_codes()) guided_l_[i] = -std::numeric_limits<float>::infinity();
   }
+  if (control != nullptr && (control->pull[0] >= 0 || control->pull[1] >= 0 || control->lower_bias != nullptr)) {
+    for (int stream = 0; stream < 2; ++stream) {
+      absl::Span<const float>& from = stream == 0 ? lu : ll;
+      std::vector<float>& to = stream == 0 ? guided_u_ : guided_l_;
+      const bool touch = control->pull[stream] >= 0 || (stream == 1 && control->lower_bias != nullptr);
+      if (!touch || control->forced[stream] >= 0) continue;
+      if (from.data() != to.data()) {
+        std::copy(from.begin(), from.end(), to.begin());
+        from = to;
+      }
+      if (control->pull[stream] >= 0) {
+        AddCodePull(stream, control->pull[stream], control->pull_weight, absl::MakeSpan(to));
+      }
+      if (stream == 1 && control->lower_bias != nullptr) {
+        for (int i = 0; i < k; ++i) to[i] += control->lower_bias[i];
+      }
+    }
+  }
   SamplingOptions effective = s.options;  // SampleCode reads temperature, top-k and top-p
   effective.top_p = top_p();
-  const int upper = SampleCode(lu, effective, s.generator, sampler_);
-  const int lower = SampleCode(ll, effective, s.generator, sampler_);
+  const int upper = control != nullptr && control->forced[0] >= 0 ? control->forced[0]
+                                                                  : SampleCode(lu, effective, s.generator, sampler_);
+  const int lower = control != nullptr && control->forced[1] >= 0 ? control->forced[1]
+                                                                  : SampleCode(ll, effective, s.generator, sampler_);
   s.code_history.emplace_back(upper, lower);
   if (s.code_history.size() > kMaxCodeHistory) s.code_history.pop_front();
   return {upper, lower};
@@ -155,6 +178,16 @@ void SamplingPolicy::ApplyPeriodLock(int stream, absl::Span<float> logits) {
   lock_sim_.noalias() = unit * unit.row(stream == 0 ? up : low).transpose();
   for (size_t i = 0; i < logits.size(); ++i) {
     logits[i] += lock * std::exp((lock_sim_[static_cast<Eigen::Index>(i)] - 1.0f) * sharpness);
+  }
+}
+
+void SamplingPolicy::AddCodePull(int stream, int code, float weight, absl::Span<float> logits) {
+  const RowMatrix& unit = model_->unit_codebook(stream);
+  const float sharpness = model_->period_lock_sharpness();
+  lock_sim_.resize(unit.rows());
+  lock_sim_.noalias() = unit * unit.row(code).transpose();
+  for (size_t i = 0; i < logits.size(); ++i) {
+    logits[i] += weight * std::exp((lock_sim_[static_cast<Eigen::Index>(i)] - 1.0f) * sharpness);
   }
 }
 

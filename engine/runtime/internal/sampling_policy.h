@@ -35,6 +35,14 @@ namespace dance::engine {
 // 240 steps each.
 inline constexpr size_t kMaxCodeHistory = 1024;
 
+// What the session's controls (MotionControl) ask of one step; the default asks nothing.
+struct StepControl {
+  int forced[2] = {-1, -1};  // per stream (0 upper, 1 lower): the code this step must take, -1 = sample
+  int pull[2] = {-1, -1};    // per stream: a code to pull the choice toward (the next known pose), -1 = none
+  float pull_weight = 0.0f;  // the pull's logit bias at the target code (the period lock's kernel around it)
+  const float* lower_bias = nullptr;  // (K) added to the lower logits (the trajectory), or null
+};
+
 struct SamplingState {
   SamplingOptions options;  // as set (negative fields = the model's defaults, resolved per step)
   StyleMix style;
@@ -57,7 +65,8 @@ class SamplingPolicy {
 
   // Samples this step's (upper, lower) codes from the lanes' logits (style guidance, music guidance, the
   // period lock and the crouch guard applied if on) and records them; `yaw` is the body's heading now.
-  std::pair<int, int> Sample(const StepLogits& logits, double yaw);
+  // `control` (may be null) forces, pulls or biases streams; a stream forced or pulled is not period-locked.
+  std::pair<int, int> Sample(const StepLogits& logits, double yaw, const StepControl* control = nullptr);
   // One decoded frame's pelvis height, for the crouch guard.
   void ObserveDecodedHeight(float pelvis_height);
 
@@ -91,6 +100,8 @@ class SamplingPolicy {
  private:
   // Adds the period lock's bias toward the code lock_lag(stream) steps ago to `logits` of `stream` (0 upper).
   void ApplyPeriodLock(int stream, absl::Span<float> logits);
+  // Adds `weight` x the period lock's kernel around `code` of `stream` to `logits`.
+  void AddCodePull(int stream, int code, float weight, absl::Span<float> logits);
   // Whether `stream` moved over its last lock_lag(stream) steps (at least half of them distinct codes).
   bool PeriodMoves(int stream);
   // The period lock's lag of `stream` in whole steps: the model's period_lock_periods(stream) times one

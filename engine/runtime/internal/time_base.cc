@@ -217,6 +217,34 @@ void TimeBase::EmitWarped(std::vector<PoseFrame>* out) {
   }
 }
 
+void TimeBase::EmittedRealSpan(int64_t step, double* first, double* last, double* rate) const {
+  const int fps = model_->config().frames_per_step;
+  const int64_t j0 = (step + 1) * fps, j1 = j0 + fps - 1;
+  *rate = 1.0;
+  if (!warped()) {
+    *first = static_cast<double>(j0);
+    *last = static_cast<double>(j1);
+    return;
+  }
+  const WarpState& w = state_.warp;
+  // The last warped frame the step's music token read; the clock is known up to it whatever the chunking.
+  const int64_t known = (step + model_->config().music_lookahead_steps + 1) * fps - 1;
+  const int64_t i_known = known - w.first_source;
+  if (w.source.empty() || i_known < 0 || i_known >= static_cast<int64_t>(w.source.size())) {
+    *first = static_cast<double>(j0);  // (not reached: a ready step's token frames are in the clock)
+    *last = static_cast<double>(j1);
+    return;
+  }
+  *rate = std::max(w.rate[i_known], 0.1);
+  auto real = [&](int64_t j) {
+    const int64_t i = j - w.first_source;
+    if (j <= known && i >= 0) return static_cast<double>(w.source[i]);
+    return static_cast<double>(w.source[i_known]) + static_cast<double>(j - known) / *rate;
+  };
+  *first = real(j0);
+  *last = real(j1);
+}
+
 TimeBaseSnapshot TimeBase::Snapshot() const { return {front_end_->Snapshot(), state_}; }
 
 absl::Status TimeBase::Restore(const TimeBaseSnapshot& snapshot) {

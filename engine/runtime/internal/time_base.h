@@ -106,6 +106,11 @@ class TimeBase {
   void SetStyle(const ResolvedStyle& style);
 
   bool warped() const { return model_->tempo_reference_bpm() > 0.0; }
+  // The real frames step `step` will emit, [*first, *last], and the clock's rate (warped frames per real
+  // frame) then: its warped period's frames mapped through the clock as far as the step's own music token
+  // reached, extrapolated at that token's rate beyond (so the answer does not depend on how much more
+  // audio has arrived: chunking stays invisible). Fixed rate: the period's own frames, rate 1.
+  void EmittedRealSpan(int64_t step, double* first, double* last, double* rate) const;
   // The music token the last step of a warped model read (empty before the first and for fixed rate).
   const std::vector<float>& last_warped_music_token() const { return music_token_; }
   const TimeBaseState& state() const { return state_; }

@@ -1,0 +1,91 @@
+// MotionControl: a session's controls (controls.h) at run time. Built once from the Controls (the given
+// motion is encoded to codes per stream with the model's VQ encoders), then asked twice per step:
+//   ForStep: which codes the step must take (a stream whose joints are known over the emitted period),
+//            which code to pull toward (the next known pose within the key horizon), and the trajectory's
+//            bias over the lower codes (their decoded root motion against the path ahead);
+//   Composite: each emitted frame, before the foot lock: known joints as given, the rest generated and
+//            rigidly aligned to the last known root, crossfades at the seams, the bounded root correction
+//            toward the path.
+// docs/controls.md has the design and its measurements.
+//
+// State: the alignment and the seam memory live in MotionControlState (snapshot = copy). Not thread-safe.
+#ifndef DANCE_ENGINE_RUNTIME_INTERNAL_MOTION_CONTROL_H_
+#define DANCE_ENGINE_RUNTIME_INTERNAL_MOTION_CONTROL_H_
+
+#include <cstdint>
+#include <vector>
+
+#include "Eigen/Core"
+#include "absl/status/statusor.h"
+#include "engine/runtime/controls.h"
+#include "engine/runtime/internal/sampling_policy.h"
+#include "engine/runtime/model.h"
+#include "engine/runtime/pose_frame.h"
+#include "engine/vq/pose_reconstructor.h"
+#include "engine/vq/vq_decoder.h"
+
+namespace dance::engine {
+
+// The trajectory ranks this many of a step's most likely lower codes by the root motion they decode to.
+inline constexpr int kTrajectoryCandidates = 32;
+
+struct MotionControlState {
+  // The rigid map from the generated dance to the output: yaw about +Y by `yaw`, then + (x, 0, z).
+  double yaw = 0.0, x = 0.0, z = 0.0;
+  double correction_x = 0.0, correction_z = 0.0;  // the trajectory's last root correction, m per frame
+  int64_t last_known = -1;        // the last emitted frame with known joints (-1 = none yet)
+  JointPositions last_pose{};     // that frame's output
+};
+
+class MotionControl {
+ public:
+  // InvalidArgument for invalid controls; FailedPrecondition if motion is given and the model has no
+  // encoders.
+  static absl::StatusOr<MotionControl> Create(const Model& model, const Controls& controls);
+
+  bool active() const { return active_; }
+  // The control of the step that emits real frames [first_real, last_real] (estimated for a
+  // tempo-normalised model from its clock); `root` and `yaw` are the generated root now and `rate` the
+  // warped frames per real frame (1 for fixed rate). The returned bias pointer is valid until the next call.
+  // `lower_state` is the lower decoder's state now and `lower_logits` the step's conditional lower logits
+  // (K): the trajectory ranks the kTrajectoryCandidates most likely codes by the root motion each decodes
+  // to from that state.
+  StepControl ForStep(double first_real, double last_real, const PoseState& root, double rate,
+                      const VqDecoderState& lower_state, const float* lower_logits);
+  // Composites emitted frame `frame` (positions as generated and bone-projected) in place; returns true if
+  // its lower body was given (the foot lock must leave it alone).
+  bool Composite(PoseFrame& frame);
+
+  const MotionControlState& state() const { return state_; }
+  void Restore(const MotionControlState& state) { state_ = state; }
+  void Reset() { state_ = MotionControlState(); }
+
+ private:
+  MotionControl(const Model& model, Controls controls);
+  // The code of `stream` given at audio frame m (-1 if that stream's joints are not all known there).
+  int GivenCode(int stream, int64_t m) const;
+  // The path point at audio time t (clamped to the path's ends); facing if the points give it.
+  Eigen::Vector2d PathAt(double t_s) const;
+  bool PathFacingAt(double t_s, double* facing) const;
+  // Applies the alignment to `p` (in place).
+  void Align(JointPositions& p) const;
+  // Turns the alignment (and `p`, already aligned) by `dyaw` about `pivot`, then moves both by (dx, dz).
+  void TurnAndMove(double dyaw, const Eigen::Vector3f& pivot, double dx, double dz, JointPositions& p);
+
+  const Model* model_;
+  Controls controls_;
+  bool active_ = false;
+  PoseReconstructor reconstructor_;
+  std::vector<int> codes_[2];       // per track frame: the given code of each stream, or -1
+  std::vector<int64_t> known_frames_;  // audio frames with any known joint, ascending
+  std::vector<float> lower_bias_;   // (K) scratch of the trajectory
+  std::vector<int> candidates_;     // scratch of the trajectory: candidate lower codes
+  std::vector<VqDecoderState> candidate_states_;
+  std::vector<VqDecoderState*> candidate_ptrs_;
+  VqDecoderScratch candidate_scratch_;
+  MotionControlState state_;
+};
+
+}  // namespace dance::engine
+
+#endif  // DANCE_ENGINE_RUNTIME_INTERNAL_MOTION_CONTROL_H_

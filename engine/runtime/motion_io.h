@@ -1,0 +1,42 @@
+// Readers of the controls' files (docs/controls.md): given motion as dance-motion/v1 JSON or BVH, a
+// trajectory (dance-trajectory/v1), an inpainting mask (dance-mask/v1). Motion comes out on the canonical
+// 24-joint SMPL skeleton at 30 fps (other frame rates are resampled linearly), placed on the audio timeline
+// by its audio_offset_s (JSON) or at 0 (BVH).
+//
+// Usage:
+//   absl::StatusOr<MotionFile> clip = ReadMotionFile("seed.json");        // or .bvh
+//   absl::StatusOr<std::vector<TrajectoryPoint>> path = ReadTrajectoryFile("path.json");
+//   absl::StatusOr<std::vector<JointMask>> mask = ReadMaskFile("mask.json", *clip);
+//
+// Errors: NotFound (no file), InvalidArgument naming what is wrong (not JSON/BVH, another format or
+// skeleton, a joint count other than 24 or joints missing from a BVH, NaN or absurd positions, times out
+// of order, a mask naming unknown joints or times outside the dance). Thread safety: pure functions.
+#ifndef DANCE_ENGINE_RUNTIME_MOTION_IO_H_
+#define DANCE_ENGINE_RUNTIME_MOTION_IO_H_
+
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "engine/runtime/controls.h"
+
+namespace dance::engine {
+
+struct MotionFile {
+  std::vector<JointPositions> positions;  // 30 fps
+  int64_t first_frame = 0;                // audio frame of positions[0] (round(audio_offset_s x 30))
+  double offset_s = 0.0;                  // the file's own audio time of positions[0] (audio_offset_s)
+  std::vector<double> times_s;            // keyframe files: each frame's audio time ("times_s"); else empty
+};
+
+absl::StatusOr<MotionFile> ReadMotionFile(const std::string& path);
+absl::StatusOr<std::vector<TrajectoryPoint>> ReadTrajectoryFile(const std::string& path);
+// The per-frame known joints of `dance` from a dance-mask/v1 file (times on the audio timeline).
+absl::StatusOr<std::vector<JointMask>> ReadMaskFile(const std::string& path, const MotionFile& dance);
+
+// Parses a BVH text whose joints carry the SMPL joint names (as dance-generate's BVH export writes them).
+absl::StatusOr<MotionFile> ParseBvh(const std::string& text);
+
+}  // namespace dance::engine
+
+#endif  // DANCE_ENGINE_RUNTIME_MOTION_IO_H_
