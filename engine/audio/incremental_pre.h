@@ -1,7 +1,7 @@
 // Incremental PRE (phase-based rhythm extraction): per frame, the phases of a Hann-windowed DFT
 // over the last kPreWindow frames of kPreChannels rhythm channels, bins 1..16, as (cos, sin).
 //
-// Definition (the batch reference training/features/pre_reference.py computes the same numbers):
+// Definition (the batch reference training/experiments/pre_reference.py computes the same numbers):
 //   x_c(n)   channel c at frame n; x_c(n) = 0 for n < 0
 //   D_k(n)   = sum_{m=0}^{N-1} x(n-N+1+m) exp(-i 2 pi k m / N)       (N = 64, oldest frame at m =
 //   0) H_k(n)   = 0.5 D_k - 0.25 D_{k-1} - 0.25 D_{k+1}, with D_0 := 0    (periodic Hann; the

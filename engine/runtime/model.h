@@ -95,7 +95,7 @@ class Model {
   float default_period_lock() const { return default_period_lock_; }
   // The period lock weight of sessions whose top style is row `row` (metadata "time_base": {...,
   // "style_period_lock": {style: B_s, ...}}, each 0..100; styles not named, "none" and rows out of range:
-  // default_period_lock()). The waltzes here follow the tempo unlocked (docs/training.md).
+  // default_period_lock()). The waltzes here follow the tempo unlocked (docs/research-log.md).
   float StylePeriodLock(int row) const {
     return row >= 0 && row < static_cast<int>(style_period_lock_.size()) ? style_period_lock_[row]
                                                                            : default_period_lock_;

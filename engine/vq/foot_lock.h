@@ -19,7 +19,7 @@
 //      exact; the hips, the pelvis and the upper body are untouched, so the root path and the music timing
 //      do not change.
 // A foot that is high or moving fast is never held, and its correction fades within a few frames of swing,
-// where the foot's own motion hides it. Measured on the default model's dances (docs/training.md "Foot
+// where the foot's own motion hides it. Measured on the default model's dances (docs/research-log.md "Foot
 // lock"): foot skating and PFC fall toward the real dancers', jitter and FID change within noise.
 //
 // Usage:
@@ -38,7 +38,7 @@
 
 namespace dance::engine {
 
-// Contact thresholds, chosen on the default model's validation dances (docs/training.md "Foot lock"): the
+// Contact thresholds, chosen on the default model's validation dances (docs/research-log.md "Foot lock"): the
 // real dancers' foot joint sits below 3 cm in about a quarter of their frames; the lower foot's median
 // horizontal speed is 0.3-0.4 m/s (ballroom feet slide), so only slower feet are held fully.
 inline constexpr float kFootLockHeightFull = 0.03f;   // metres: foot joint at or below: height weight 1

@@ -260,7 +260,15 @@ bool MotionControl::Composite(PoseFrame& frame) {
     } else if (!controls_.trajectory.empty()) {
       // Trajectory: a bounded correction of the alignment toward the path.
       const double t_s = static_cast<double>(m) / audio::kFrameRate;
-      if (t_s >= controls_.trajectory.front().t_s && t_s <= controls_.trajectory.back().t_s) {
+      if (!state_.on_path) {
+        // The dance starts on the path (its first point if the path starts later): moved there at the
+        // first frame, not steered from afar.
+        const Eigen::Vector2d e = PathAt(t_s) - Eigen::Vector2d(p[0].x(), p[0].z());
+        TurnAndMove(0.0, p[0], e.x(), e.y(), p);
+        state_.on_path = true;
+      }
+      {
+        // (Before the path's first point and after its last the dancer is held around that point.)
         // The correction's velocity follows the wanted one through a low-pass (a step change of it is
         // a jerk the eye sees as shaking).
         Eigen::Vector2d e = kTrajectoryGain * (PathAt(t_s) - Eigen::Vector2d(p[0].x(), p[0].z()));
@@ -309,28 +317,39 @@ bool MotionControl::Composite(PoseFrame& frame) {
   if (state_.last_known >= 0 && m - state_.last_known < out_frames) {
     const double a = SmoothStep(static_cast<double>(m - state_.last_known) / out_frames);
     const double last_yaw = HipYaw(state_.last_pose);
+    // The pelvis height first (the known frame's fading into the generated one), then every joint in the
+    // body frame around that pelvis.
+    Eigen::Vector3f pelvis = p[0];
+    pelvis.y() = static_cast<float>((1.0 - a) * state_.last_pose[0].y() + a * p[0].y());
     for (int j = 1; j < kNumJoints; ++j) {
       const Eigen::Vector3d carried = ToBody(state_.last_pose[j], state_.last_pose[0], last_yaw);
       const Eigen::Vector3d generated = ToBody(p[j], p[0], gen_yaw);
-      p[j] = FromBody((1.0 - a) * carried + a * generated, p[0], gen_yaw);
+      p[j] = FromBody((1.0 - a) * carried + a * generated, pelvis, gen_yaw);
     }
-    p[0].y() = static_cast<float>((1.0 - a) * state_.last_pose[0].y() + a * p[0].y());
+    p[0] = pelvis;
     blended = true;
   }
-  // Into the next known frame: the pose moves toward it in the body frame (the root was steered above).
+  // Into the next known frame. A known root: the whole body moves toward the key in global positions (the
+  // root was steered close above; blending positions, not a facing angle, has no wrap-around to jump
+  // at). Otherwise the known joints move toward it in the body frame.
   const double in_frames = w.blend_in_s * audio::kFrameRate;
   if (next != known_frames_.end() && *next - m < in_frames) {
     const JointPositions& key = t.positions[*next - t.first_frame];
     const JointMask key_known = t.KnownAt(*next);
-    const double b = SmoothStep(1.0 - static_cast<double>(*next - m) / in_frames);
-    const double key_yaw = HipYaw(key);
-    for (int j = 1; j < kNumJoints; ++j) {
-      if (!(key_known >> j & 1)) continue;
-      const Eigen::Vector3d gb = ToBody(p[j], p[0], gen_yaw);
-      const Eigen::Vector3d kb = ToBody(key[j], key[0], key_yaw);
-      p[j] = FromBody((1.0 - b) * gb + b * kb, p[0], gen_yaw);
+    const float b = static_cast<float>(SmoothStep(1.0 - static_cast<double>(*next - m) / in_frames));
+    if (key_known & 1) {
+      for (int j = 0; j < kNumJoints; ++j) {
+        if (key_known >> j & 1) p[j] += b * (key[j] - p[j]);
+      }
+    } else {
+      const double key_yaw = HipYaw(key);
+      for (int j = 1; j < kNumJoints; ++j) {
+        if (!(key_known >> j & 1)) continue;
+        const Eigen::Vector3d gb = ToBody(p[j], p[0], gen_yaw);
+        const Eigen::Vector3d kb = ToBody(key[j], key[0], key_yaw);
+        p[j] = FromBody((1.0 - b) * gb + b * kb, p[0], gen_yaw);
+      }
     }
-    if (key_known & 1) p[0].y() = static_cast<float>((1.0 - b) * p[0].y() + b * key[0].y());
     blended = true;
   }
   if (blended) reconstructor_.ProjectBoneLengths(p);

@@ -33,6 +33,7 @@ struct MotionControlState {
   // The rigid map from the generated dance to the output: yaw about +Y by `yaw`, then + (x, 0, z).
   double yaw = 0.0, x = 0.0, z = 0.0;
   double correction_x = 0.0, correction_z = 0.0;  // the trajectory's last root correction, m per frame
+  bool on_path = false;           // the dance has been moved onto the path's start
   int64_t last_known = -1;        // the last emitted frame with known joints (-1 = none yet)
   JointPositions last_pose{};     // that frame's output
 };
