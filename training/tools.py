@@ -12,6 +12,7 @@ RuntimeError with its stderr. Both tools are single-threaded and deterministic f
 """
 from __future__ import annotations
 
+import json
 import os
 import pathlib
 import subprocess
@@ -94,3 +95,15 @@ def dance_generate(model, audio, out, *, seed: int, temperature: float = 1.0, st
       cmd += [flag, str(value)]
   _run(cmd, f"dance-generate on {audio}")
   return pathlib.Path(out)
+
+
+def dance_generate_summary(model, audio, out, *, seed: int, style: str | None = None, extra=()) -> dict:
+  """Runs `dance-generate` with extra flags (`extra`, e.g. the controls' `--seed-motion FILE`; docs/controls.md)
+  and returns its one-line JSON summary (frames, steps, audio_s, wall_s, x_real_time, model_id, out)."""
+  cmd = [str(require("dance-generate")), "--audio", str(audio), "--out", str(out), "--model", str(model),
+         "--seed", str(seed)]
+  if style:
+    cmd += ["--style", style]
+  cmd += [str(a) for a in extra]
+  stdout = _run(cmd, f"dance-generate {' '.join(str(a) for a in extra)} on {audio}")
+  return json.loads(stdout.strip().splitlines()[-1])

@@ -20,14 +20,13 @@ from __future__ import annotations
 import argparse
 import json
 import pathlib
-import subprocess
-import time
 
 import numpy as np
 
 from training import tools
 from training.eval import evaluate
 from training.eval.evaluate import Dance
+from training.eval.render import render_strip
 
 TASKS = ("unconstrained", "trajectory", "seed", "inbetween", "inpaint", "upper_generated", "lower_generated")
 UPPER = [3, 6, 9, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23]
@@ -122,14 +121,8 @@ def constraint_errors(task: str, gen: Dance, real: Dance, seams_s: list[float]) 
 
 
 def generate(model: str, real: Dance, flags: list[str], out: pathlib.Path, seed: int) -> tuple[Dance, float]:
-  cmd = [str(tools.require("dance-generate")), "--audio", real.audio_path, "--out", str(out), "--model", model,
-         "--seed", str(seed), "--style", real.style] + flags
-  t0 = time.perf_counter()
-  proc = subprocess.run(cmd, capture_output=True, text=True)
-  wall = time.perf_counter() - t0
-  if proc.returncode != 0:
-    raise RuntimeError(f"dance-generate {' '.join(flags)} on {real.name}: {proc.stderr.strip()}")
-  summary = json.loads(proc.stdout.strip().splitlines()[-1])
+  """One task's dance of one song through the engine; returns it and the wall time per step (ms)."""
+  summary = tools.dance_generate_summary(model, real.audio_path, out, seed=seed, style=real.style, extra=flags)
   d = evaluate.load_dance(out, audio=real.audio_path)
   d.name, d.style = real.name, real.style
   return d, summary["wall_s"] / max(summary["steps"], 1) * 1000.0
@@ -144,6 +137,10 @@ def main(argv=None) -> int:
   ap.add_argument("--tasks", default=",".join(TASKS), help="comma-separated subset of " + ", ".join(TASKS))
   ap.add_argument("--render", action="store_true")
   args = ap.parse_args(argv)
+  tasks = [t for t in args.tasks.split(",") if t]
+  for t in tasks:
+    if t not in TASKS:
+      raise SystemExit(f"controls_eval: unknown task '{t}' (known: {', '.join(TASKS)})")
   out = pathlib.Path(args.out_dir)
   out.mkdir(parents=True, exist_ok=True)
   ids = [s for s in args.songs.split(",") if s] or evaluate.split_ids("validation")
@@ -154,10 +151,6 @@ def main(argv=None) -> int:
             "real_p95_max_joint_speed": float(np.percentile(speeds, 95)), "tasks": {}}
   conditions = {r.name: write_conditions(r, out / "inputs" / r.name) for r in real}
   first_seams = {}
-  tasks = [t for t in args.tasks.split(",") if t]
-  for t in tasks:
-    if t not in TASKS:
-      raise SystemExit(f"controls_eval: unknown task '{t}' (known: {', '.join(TASKS)})")
   for task in tasks:
     dances, errors, step_ms = [], [], []
     (out / "dances" / task).mkdir(parents=True, exist_ok=True)
@@ -182,7 +175,6 @@ def main(argv=None) -> int:
   (out / "controls_report.json").write_text(json.dumps(report, indent=1))
   (out / "controls_report.md").write_text(markdown(report))
   if args.render:
-    from training.eval.render import render_strip
     for task, (d, seams) in first_seams.items():
       t = (seams[0] if seams else d.audio_offset_s + 20.0) - 1.0
       render_strip(d.positions, str(out / f"strip_{task}.png"), fps=30, start_s=t - d.audio_offset_s, n=8,
