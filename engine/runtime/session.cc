@@ -124,6 +124,7 @@ absl::Status Session::Restore(const SessionSnapshot& s) {
   DANCE_RETURN_IF_ERROR(lanes_.Validate(s.lanes));
   DANCE_RETURN_IF_ERROR(body_.Validate(s.body));
   DANCE_RETURN_IF_ERROR(policy_.Validate(s.sampling));
+  DANCE_RETURN_IF_ERROR(control_.Validate(s.control));
   DANCE_RETURN_IF_ERROR(time_.Restore(s.time));
   lanes_.Restore(s.lanes);
   body_.Restore(s.body);
@@ -139,7 +140,7 @@ void Session::Reset() {
   policy_.Reset(options_.seed, options_.sampling, *style);
   lanes_.Reset(*style);
   body_.Reset();
-  control_.Reset();
+  control_.Reset(control_.initial_plan());
   output_.clear();
 }
 

@@ -113,6 +113,10 @@ class Session {
   // Changes the style from the next step on; InvalidArgument for an unknown name or a bad weight.
   absl::Status SetStyle(const StyleMix& style) { return ApplyStyle(style); }
   absl::Status SetSampling(const SamplingOptions& sampling) { return policy_.SetSampling(sampling); }
+  // Replaces the controls from the next step on (a new path, a hand-over clip, the latest given poses);
+  // the dance's alignment carries on. InvalidArgument for bad controls (nothing changes then). The
+  // controls travel in snapshots.
+  absl::Status SetControls(const Controls& controls) { return control_.SetControls(controls); }
 
   absl::StatusOr<SessionSnapshot> Snapshot() const;
   absl::Status Restore(const SessionSnapshot& snapshot);

@@ -48,24 +48,36 @@ Eigen::Vector3f FromBody(const Eigen::Vector3d& b, const Eigen::Vector3f& pelvis
 
 }  // namespace
 
-MotionControl::MotionControl(const Model& model, Controls controls)
-    : model_(&model), controls_(std::move(controls)), reconstructor_(model.skeleton()) {}
+MotionControl::MotionControl(const Model& model) : model_(&model), reconstructor_(model.skeleton()) {}
 
 absl::StatusOr<MotionControl> MotionControl::Create(const Model& model, const Controls& controls) {
+  MotionControl mc(model);
+  DANCE_ASSIGN_OR_RETURN(mc.initial_plan_, mc.MakePlan(controls));
+  mc.state_.plan = mc.initial_plan_;
+  return mc;
+}
+
+absl::Status MotionControl::SetControls(const Controls& controls) {
+  DANCE_ASSIGN_OR_RETURN(state_.plan, MakePlan(controls));
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::shared_ptr<const ControlPlan>> MotionControl::MakePlan(const Controls& controls) const {
   DANCE_RETURN_IF_ERROR(ValidateControls(controls));
-  MotionControl mc(model, controls);
-  mc.active_ = !controls.empty();
-  const MotionTrack& t = mc.controls_.motion;
+  if (controls.empty()) return std::shared_ptr<const ControlPlan>();
+  auto plan = std::make_shared<ControlPlan>();
+  plan->controls = controls;
+  const MotionTrack& t = plan->controls.motion;
   if (!t.empty()) {
-    if (model.upper_encoder() == nullptr || model.lower_encoder() == nullptr) {
+    if (model_->upper_encoder() == nullptr || model_->lower_encoder() == nullptr) {
       return absl::FailedPreconditionError(
-          absl::StrCat("controls: model '", model.model_id(), "' has no VQ encoders to read given motion with"));
+          absl::StrCat("controls: model '", model_->model_id(), "' has no VQ encoders to read given motion with"));
     }
     const JointMask stream_mask[2] = {UpperMask(), LowerMask()};
-    const VqEncoder* encoder[2] = {model.upper_encoder(), model.lower_encoder()};
+    const VqEncoder* encoder[2] = {model_->upper_encoder(), model_->lower_encoder()};
     const int n = static_cast<int>(t.positions.size());
     for (int stream = 0; stream < 2; ++stream) {
-      std::vector<int>& codes = mc.codes_[stream];
+      std::vector<int>& codes = plan->codes[stream];
       codes.assign(n, -1);
       // Each run of frames that know the whole stream is encoded on its own (the encoder looks ahead and
       // behind within the run; a single key frame is held for one code).
@@ -84,20 +96,33 @@ absl::StatusOr<MotionControl> MotionControl::Create(const Model& model, const Co
       }
     }
     for (int i = 0; i < n; ++i) {
-      if (t.known[i] != 0) mc.known_frames_.push_back(t.first_frame + i);
+      if (t.known[i] != 0) plan->known_frames.push_back(t.first_frame + i);
     }
   }
-  return mc;
+  return std::shared_ptr<const ControlPlan>(std::move(plan));
+}
+
+absl::Status MotionControl::Validate(const MotionControlState& state) const {
+  if (state.plan == nullptr) return absl::OkStatus();
+  const int k = model_->config().codebook_size;
+  for (const std::vector<int>& codes : state.plan->codes) {
+    for (int code : codes) {
+      if (code < -1 || code >= k) {
+        return absl::InvalidArgumentError("session restore: snapshot has control codes outside this model's codebook");
+      }
+    }
+  }
+  return absl::OkStatus();
 }
 
 int MotionControl::GivenCode(int stream, int64_t m) const {
-  const MotionTrack& t = controls_.motion;
+  const MotionTrack& t = plan().controls.motion;
   if (m < t.first_frame || m >= t.end_frame()) return -1;
-  return codes_[stream][m - t.first_frame];
+  return plan().codes[stream][m - t.first_frame];
 }
 
 Eigen::Vector2d MotionControl::PathAt(double t_s) const {
-  const auto& path = controls_.trajectory;
+  const auto& path = plan().controls.trajectory;
   if (t_s <= path.front().t_s) return {path.front().x, path.front().z};
   if (t_s >= path.back().t_s) return {path.back().x, path.back().z};
   const auto it = std::upper_bound(path.begin(), path.end(), t_s,
@@ -109,7 +134,7 @@ Eigen::Vector2d MotionControl::PathAt(double t_s) const {
 }
 
 bool MotionControl::PathFacingAt(double t_s, double* facing) const {
-  const auto& path = controls_.trajectory;
+  const auto& path = plan().controls.trajectory;
   const TrajectoryPoint* before = nullptr;
   const TrajectoryPoint* after = nullptr;
   for (const TrajectoryPoint& p : path) {
@@ -139,11 +164,11 @@ void MotionControl::Align(JointPositions& p) const {
 StepControl MotionControl::ForStep(double first_real, double last_real, const PoseState& root, double rate,
                                    const VqDecoderState& lower_state, const float* lower_logits) {
   StepControl sc;
-  if (!active_) return sc;
-  const ControlWeights& w = controls_.weights;
+  if (!active()) return sc;
+  const ControlWeights& w = plan().controls.weights;
   const int64_t lo = static_cast<int64_t>(std::floor(first_real));
   const int64_t hi = static_cast<int64_t>(std::ceil(last_real));
-  if (!controls_.motion.empty()) {
+  if (!plan().controls.motion.empty()) {
     const int64_t mid = static_cast<int64_t>(std::lround(0.5 * (first_real + last_real)));
     for (int stream = 0; stream < 2; ++stream) {
       // Forced: the given code at the frame of the emitted period nearest its middle that has one.
@@ -159,15 +184,15 @@ StepControl MotionControl::ForStep(double first_real, double last_real, const Po
       sc.forced[stream] = best;
     }
     // Pulled: toward the codes of the next known frame within the horizon.
-    const auto next = std::upper_bound(known_frames_.begin(), known_frames_.end(), hi);
-    if (next != known_frames_.end() && *next - hi <= std::lround(w.key_horizon_s * audio::kFrameRate)) {
+    const auto next = std::upper_bound(plan().known_frames.begin(), plan().known_frames.end(), hi);
+    if (next != plan().known_frames.end() && *next - hi <= std::lround(w.key_horizon_s * audio::kFrameRate)) {
       for (int stream = 0; stream < 2; ++stream) {
         if (sc.forced[stream] < 0) sc.pull[stream] = GivenCode(stream, *next);
       }
       sc.pull_weight = w.key_pull;
     }
   }
-  if (!controls_.trajectory.empty() && sc.forced[1] < 0 && w.trajectory_weight > 0.0f) {
+  if (!plan().controls.trajectory.empty() && sc.forced[1] < 0 && w.trajectory_weight > 0.0f) {
     // The root in output coordinates now, and the path point a lead ahead of the emitted period.
     const double c = std::cos(state_.yaw), s = std::sin(state_.yaw);
     const Eigen::Vector2d here(c * root.root_x + s * root.root_z + state_.x, -s * root.root_x + c * root.root_z + state_.z);
@@ -234,15 +259,15 @@ void MotionControl::TurnAndMove(double dyaw, const Eigen::Vector3f& pivot, doubl
 }
 
 bool MotionControl::Composite(PoseFrame& frame) {
-  if (!active_) return false;
-  const ControlWeights& w = controls_.weights;
-  const MotionTrack& t = controls_.motion;
+  if (!active()) return false;
+  const ControlWeights& w = plan().controls.weights;
+  const MotionTrack& t = plan().controls.motion;
   const int64_t m = frame.index;
   JointPositions& p = frame.positions;
   Align(p);
   const JointMask known = t.KnownAt(m);
-  const auto next = std::upper_bound(known_frames_.begin(), known_frames_.end(), m);
-  const bool next_root = next != known_frames_.end() && (t.KnownAt(*next) & 1);
+  const auto next = std::upper_bound(plan().known_frames.begin(), plan().known_frames.end(), m);
+  const bool next_root = next != plan().known_frames.end() && (t.KnownAt(*next) & 1);
   if (!(known & 1)) {
     if (next_root) {
       // Steer toward the next known root: each frame closes a share of the remaining offset in position
@@ -257,7 +282,7 @@ bool MotionControl::Composite(PoseFrame& frame) {
       const double cap = kMaxSteerSpeed / audio::kFrameRate;
       if (d.norm() > cap) d *= cap / d.norm();
       TurnAndMove(dyaw, p[0], d.x(), d.y(), p);
-    } else if (!controls_.trajectory.empty()) {
+    } else if (!plan().controls.trajectory.empty()) {
       // Trajectory: a bounded correction of the alignment toward the path.
       const double t_s = static_cast<double>(m) / audio::kFrameRate;
       if (!state_.on_path) {
@@ -333,7 +358,7 @@ bool MotionControl::Composite(PoseFrame& frame) {
   // root was steered close above; blending positions, not a facing angle, has no wrap-around to jump
   // at). Otherwise the known joints move toward it in the body frame.
   const double in_frames = w.blend_in_s * audio::kFrameRate;
-  if (next != known_frames_.end() && *next - m < in_frames) {
+  if (next != plan().known_frames.end() && *next - m < in_frames) {
     const JointPositions& key = t.positions[*next - t.first_frame];
     const JointMask key_known = t.KnownAt(*next);
     const float b = static_cast<float>(SmoothStep(1.0 - static_cast<double>(*next - m) / in_frames));

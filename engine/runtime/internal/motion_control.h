@@ -13,6 +13,7 @@
 #define DANCE_ENGINE_RUNTIME_INTERNAL_MOTION_CONTROL_H_
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "Eigen/Core"
@@ -29,7 +30,16 @@ namespace dance::engine {
 // The trajectory ranks this many of a step's most likely lower codes by the root motion they decode to.
 inline constexpr int kTrajectoryCandidates = 32;
 
+// The controls of a session with what was derived from them once (the given codes, the known frames);
+// immutable, shared by the state and its snapshots.
+struct ControlPlan {
+  Controls controls;
+  std::vector<int> codes[2];         // per track frame: the given code of each stream, or -1
+  std::vector<int64_t> known_frames; // audio frames with any known joint, ascending
+};
+
 struct MotionControlState {
+  std::shared_ptr<const ControlPlan> plan;  // null = no controls
   // The rigid map from the generated dance to the output: yaw about +Y by `yaw`, then + (x, 0, z).
   double yaw = 0.0, x = 0.0, z = 0.0;
   double correction_x = 0.0, correction_z = 0.0;  // the trajectory's last root correction, m per frame
@@ -44,7 +54,11 @@ class MotionControl {
   // encoders.
   static absl::StatusOr<MotionControl> Create(const Model& model, const Controls& controls);
 
-  bool active() const { return active_; }
+  bool active() const { return state_.plan != nullptr; }
+  // Replaces the controls from the next step on (live: a new path or target, a hand-over clip, the latest
+  // poses of a given half); the alignment and seam memory carry on, so the dance does not jump. Same
+  // errors as Create.
+  absl::Status SetControls(const Controls& controls);
   // The control of the step that emits real frames [first_real, last_real] (estimated for a
   // tempo-normalised model from its clock); `root` and `yaw` are the generated root now and `rate` the
   // warped frames per real frame (1 for fixed rate). The returned bias pointer is valid until the next call.
@@ -58,11 +72,22 @@ class MotionControl {
   bool Composite(PoseFrame& frame);
 
   const MotionControlState& state() const { return state_; }
+  // InvalidArgument if the state's plan has codes outside this model's codebooks.
+  absl::Status Validate(const MotionControlState& state) const;
   void Restore(const MotionControlState& state) { state_ = state; }
-  void Reset() { state_ = MotionControlState(); }
+  // Back to the start with `plan` (the session's creation controls).
+  void Reset(std::shared_ptr<const ControlPlan> plan) {
+    state_ = MotionControlState();
+    state_.plan = std::move(plan);
+  }
+  // The plan the session was created with (Reset returns to it).
+  const std::shared_ptr<const ControlPlan>& initial_plan() const { return initial_plan_; }
 
  private:
-  MotionControl(const Model& model, Controls controls);
+  explicit MotionControl(const Model& model);
+  // Validates `controls` and derives their plan (null for empty controls).
+  absl::StatusOr<std::shared_ptr<const ControlPlan>> MakePlan(const Controls& controls) const;
+  const ControlPlan& plan() const { return *state_.plan; }
   // The code of `stream` given at audio frame m (-1 if that stream's joints are not all known there).
   int GivenCode(int stream, int64_t m) const;
   // The path point at audio time t (clamped to the path's ends); facing if the points give it.
@@ -74,17 +99,14 @@ class MotionControl {
   void TurnAndMove(double dyaw, const Eigen::Vector3f& pivot, double dx, double dz, JointPositions& p);
 
   const Model* model_;
-  Controls controls_;
-  bool active_ = false;
   PoseReconstructor reconstructor_;
-  std::vector<int> codes_[2];       // per track frame: the given code of each stream, or -1
-  std::vector<int64_t> known_frames_;  // audio frames with any known joint, ascending
   std::vector<float> lower_bias_;   // (K) scratch of the trajectory
   std::vector<int> candidates_;     // scratch of the trajectory: candidate lower codes
   std::vector<VqDecoderState> candidate_states_;
   std::vector<VqDecoderState*> candidate_ptrs_;
   VqDecoderScratch candidate_scratch_;
   MotionControlState state_;
+  std::shared_ptr<const ControlPlan> initial_plan_;
 };
 
 }  // namespace dance::engine

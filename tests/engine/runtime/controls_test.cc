@@ -246,6 +246,63 @@ TEST(Controls, SnapshotsAndChunkingStayExactWithControls) {
   for (size_t i = 0; i < a.size(); ++i) ASSERT_EQ(got[i].positions[20], a[i].positions[20]) << i;
 }
 
+TEST(Controls, SetMidStreamTravelInSnapshotsAndBadOnesChangeNothing) {
+  ASSERT_NE(Shipped(), nullptr);
+  SessionOptions options;
+  options.seed = 3;
+  options.style = {{"waltz", 1.0f}};
+  const std::vector<float>& audio = Audio();
+  const size_t half = audio.size() / 2;  // 12 s
+  auto first_half = [&](Session& s) {
+    EXPECT_TRUE(s.PushAudio(absl::MakeConstSpan(audio.data(), half)).ok());
+    while (s.StepsReady() > 0) EXPECT_TRUE(s.Step().ok());
+  };
+  auto second_half = [&](Session& s, std::vector<PoseFrame>* out) {
+    EXPECT_TRUE(s.PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
+    s.EndOfAudio();
+    while (s.StepsReady() > 0) EXPECT_TRUE(s.Step().ok());
+    s.PopFrames(out);
+  };
+  const std::vector<PoseFrame> free = Dance({});
+  auto s = Session::Create(Shipped(), options);
+  ASSERT_TRUE(s.ok());
+  first_half(**s);
+  std::vector<PoseFrame> out;
+  (*s)->PopFrames(&out);
+  const size_t before = out.size();
+  // A bad update is refused and changes nothing.
+  Controls bad;
+  bad.trajectory = {{.t_s = 14.0}, {.t_s = 13.0}};
+  EXPECT_EQ((*s)->SetControls(bad).code(), absl::StatusCode::kInvalidArgument);
+  // A path from where the dancer is now to 3 m along +x by the end.
+  const Eigen::Vector3f here = out.back().positions[0];
+  Controls path;
+  path.trajectory = {{.t_s = 12.5, .x = here.x(), .z = here.z()}, {.t_s = 23.0, .x = here.x() + 3.0f, .z = here.z()}};
+  ASSERT_TRUE((*s)->SetControls(path).ok());
+  absl::StatusOr<SessionSnapshot> snap = (*s)->Snapshot();
+  ASSERT_TRUE(snap.ok());
+  second_half(**s, &out);
+  ASSERT_EQ(out.size(), free.size());
+  for (size_t i = 0; i < before; ++i) ASSERT_EQ(out[i].positions[20], free[i].positions[20]) << i;
+  const PoseFrame& end = out[(23.0 - out[0].time_s) * 30];
+  EXPECT_LT(std::hypot(end.positions[0].x() - (here.x() + 3.0f), end.positions[0].z() - here.z()), 0.3);
+  // The controls travel in the snapshot: a session created without them continues the same.
+  auto t = Session::Create(Shipped(), options);
+  ASSERT_TRUE(t.ok());
+  ASSERT_TRUE((*t)->Restore(*snap).ok());
+  std::vector<PoseFrame> rest;
+  second_half(**t, &rest);
+  ASSERT_EQ(rest.size(), out.size() - before);
+  for (size_t i = 0; i < rest.size(); ++i) ASSERT_EQ(rest[i].positions[20], out[before + i].positions[20]) << i;
+  // Reset returns to the creation controls (none): the free dance again.
+  (*t)->Reset();
+  std::vector<PoseFrame> again;
+  first_half(**t);
+  second_half(**t, &again);
+  ASSERT_EQ(again.size(), free.size());
+  for (size_t i = 0; i < again.size(); ++i) ASSERT_EQ(again[i].positions[20], free[i].positions[20]) << i;
+}
+
 TEST(Controls, BadInputIsRefusedWithAClearError) {
   ASSERT_NE(Shipped(), nullptr);
   const std::vector<PoseFrame>& ref = Reference();
