@@ -17,13 +17,14 @@
 #define DANCE_SERVER_CORE_UPDATE_H_
 
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <variant>
 
-#include "absl/base/call_once.h"
 #include "server/core/engine_port.h"
 
 namespace dance::server {
@@ -66,7 +67,9 @@ class Update {
  public:
   using Body = std::variant<InfoUpdate, FrameUpdate, EventUpdate, EndUpdate>;
 
-  explicit Update(Body body) : body_(std::move(body)) {}
+  // From one kind: InfoUpdate, FrameUpdate, EventUpdate or EndUpdate.
+  template <typename Kind, typename = std::enable_if_t<!std::is_same_v<std::decay_t<Kind>, Update>>>
+  explicit Update(Kind&& kind) : body_(std::forward<Kind>(kind)) {}
   Update(const Update&) = delete;
   Update& operator=(const Update&) = delete;
 
@@ -78,19 +81,33 @@ class Update {
   const EventUpdate* event() const { return std::get_if<EventUpdate>(&body_); }
   const EndUpdate* end() const { return std::get_if<EndUpdate>(&body_); }
 
-  // The wire form kept in `slot` (from ReserveEncodingSlot), built by `build()` (returning a T) on first
-  // use. Every caller of one slot must ask for the same T.
+  // The wire form kept in `slot` (from ReserveEncodingSlot), built by `build()` (returning a T; it must
+  // not throw) on first use. Every caller of one slot must ask for the same T.
   template <typename T, typename Build>
   const T& Encoding(int slot, Build&& build) const {
     Slot& s = slots_[static_cast<size_t>(slot)];
-    absl::call_once(s.once, [&] { s.value = std::make_shared<const T>(build()); });
+    int state = s.state.load(std::memory_order_acquire);
+    if (state != kBuilt) {
+      if (state == kEmpty && s.state.compare_exchange_strong(state, kBuilding, std::memory_order_acquire)) {
+        s.value = std::make_shared<const T>(build());
+        s.state.store(kBuilt, std::memory_order_release);
+        s.state.notify_all();
+      } else {
+        // Another thread is building this form (microseconds): wait for it.
+        while ((state = s.state.load(std::memory_order_acquire)) != kBuilt) s.state.wait(state);
+      }
+    }
     return *static_cast<const T*>(s.value.get());
   }
 
  private:
+  // A slot's life: empty -> building (one thread, the first caller) -> built. Plain atomics rather than
+  // absl::call_once, whose waiting path TSan cannot see into (Debian's abseil is not instrumented), and
+  // std::call_once, which costs a pthread_once call per encoding.
+  static constexpr int kEmpty = 0, kBuilding = 1, kBuilt = 2;
   struct Slot {
-    absl::once_flag once;
-    std::shared_ptr<const void> value;  // written once, under `once`
+    std::atomic<int> state{kEmpty};
+    std::shared_ptr<const void> value;  // written once, by the builder, before state becomes kBuilt
   };
 
   const Body body_;
