@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Builds the libFuzzer targets with the `fuzz` preset (clang) and runs the audio decode + feature fuzzer
-# for a bounded time. Usage: scripts/fuzz.sh [SECONDS]   (default 60). Exit status 0 = no crash found.
+# for a bounded time, then the controls' file readers (motion_fuzz) for half that. Usage: scripts/fuzz.sh [SECONDS]   (default 60). Exit status 0 = no crash found.
 # Seeds: small WAV/FLAC/OGG/MP3 files made with sox, plus raw-PCM inputs; crashes land in build-fuzz/crashes/
 # (or $DANCE_FUZZ_BUILD_DIR/crashes/ when that variable names another build directory).
 set -euo pipefail
@@ -9,7 +9,7 @@ seconds="${1:-60}"
 jobs="${DANCE_JOBS:-2}"
 dir="${DANCE_FUZZ_BUILD_DIR:-build-fuzz}"   # the preset's binaryDir unless overridden
 cmake --preset fuzz -B "$dir" >/dev/null
-cmake --build "$dir" -j "$jobs" --target audio_fuzz
+cmake --build "$dir" -j "$jobs" --target audio_fuzz motion_fuzz
 
 corpus="$dir/corpus"
 seeds="$dir/seeds"
@@ -30,4 +30,9 @@ if [ -z "$(ls -A "$seeds")" ]; then
 fi
 ASAN_OPTIONS=detect_leaks=1 LSAN_OPTIONS="suppressions=$PWD/tests/fuzz/lsan.supp" "$dir/bin/audio_fuzz" "$corpus" "$seeds" -max_total_time="$seconds" \
   -max_len=65536 -rss_limit_mb=2048 -timeout=20 -artifact_prefix="$dir/crashes/" -print_final_stats=1
-echo "fuzz.sh: no crash in ${seconds}s"
+# The controls' file readers, seeded with one file of each kind (tests/fuzz/motion_seeds/), half the time.
+mkdir -p "$dir/motion_corpus"
+ASAN_OPTIONS=detect_leaks=1 "$dir/bin/motion_fuzz" "$dir/motion_corpus" tests/fuzz/motion_seeds \
+  -max_total_time="$(( (seconds + 1) / 2 ))" -max_len=65536 -rss_limit_mb=2048 -timeout=20 \
+  -artifact_prefix="$dir/crashes/" -print_final_stats=1
+echo "fuzz.sh: no crash in ${seconds}s (audio) + $(( (seconds + 1) / 2 ))s (motion)"

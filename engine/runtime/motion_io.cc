@@ -28,10 +28,8 @@ absl::StatusOr<std::string> ReadText(const std::string& path) {
   return ss.str();
 }
 
-absl::StatusOr<nlohmann::json> ReadJson(const std::string& path) {
-  absl::StatusOr<std::string> text = ReadText(path);
-  if (!text.ok()) return text.status();
-  nlohmann::json doc = nlohmann::json::parse(*text, nullptr, /*allow_exceptions=*/false);
+absl::StatusOr<nlohmann::json> ParseJson(const std::string& text, const std::string& path) {
+  nlohmann::json doc = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/false);
   if (doc.is_discarded()) return absl::InvalidArgumentError(absl::StrCat("'", path, "' is not JSON"));
   return doc;
 }
@@ -64,8 +62,8 @@ absl::Status CheckPositions(const std::vector<JointPositions>& p, const std::str
   return absl::OkStatus();
 }
 
-absl::StatusOr<MotionFile> ReadMotionJson(const std::string& path) {
-  absl::StatusOr<nlohmann::json> doc = ReadJson(path);
+absl::StatusOr<MotionFile> MotionFromJson(const std::string& text, const std::string& path) {
+  absl::StatusOr<nlohmann::json> doc = ParseJson(text, path);
   if (!doc.ok()) return doc.status();
   const nlohmann::json& d = *doc;
   if (!d.is_object() || d.value("format", std::string()) != "dance-motion/v1") {
@@ -256,11 +254,21 @@ absl::StatusOr<MotionFile> ReadMotionFile(const std::string& path) {
     if (!m.ok()) return absl::InvalidArgumentError(absl::StrCat("'", path, "': ", m.status().message()));
     return m;
   }
-  return ReadMotionJson(path);
+  absl::StatusOr<std::string> text = ReadText(path);
+  if (!text.ok()) return text.status();
+  return MotionFromJson(*text, path);
 }
 
+absl::StatusOr<MotionFile> ParseMotionJson(const std::string& text) { return MotionFromJson(text, "motion"); }
+
 absl::StatusOr<std::vector<TrajectoryPoint>> ReadTrajectoryFile(const std::string& path) {
-  absl::StatusOr<nlohmann::json> doc = ReadJson(path);
+  absl::StatusOr<std::string> text = ReadText(path);
+  if (!text.ok()) return text.status();
+  return ParseTrajectoryJson(*text, path);
+}
+
+absl::StatusOr<std::vector<TrajectoryPoint>> ParseTrajectoryJson(const std::string& text, const std::string& path) {
+  absl::StatusOr<nlohmann::json> doc = ParseJson(text, path);
   if (!doc.ok()) return doc.status();
   const nlohmann::json& d = *doc;
   if (!d.is_object() || d.value("format", std::string()) != "dance-trajectory/v1" || !d.contains("points") ||
@@ -290,7 +298,14 @@ absl::StatusOr<std::vector<TrajectoryPoint>> ReadTrajectoryFile(const std::strin
 }
 
 absl::StatusOr<std::vector<JointMask>> ReadMaskFile(const std::string& path, const MotionFile& dance) {
-  absl::StatusOr<nlohmann::json> doc = ReadJson(path);
+  absl::StatusOr<std::string> text = ReadText(path);
+  if (!text.ok()) return text.status();
+  return ParseMaskJson(*text, dance, path);
+}
+
+absl::StatusOr<std::vector<JointMask>> ParseMaskJson(const std::string& text, const MotionFile& dance,
+                                                     const std::string& path) {
+  absl::StatusOr<nlohmann::json> doc = ParseJson(text, path);
   if (!doc.ok()) return doc.status();
   const nlohmann::json& d = *doc;
   if (!d.is_object() || d.value("format", std::string()) != "dance-mask/v1" || !d.contains("known") ||

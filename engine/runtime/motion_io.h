@@ -34,6 +34,12 @@ absl::StatusOr<std::vector<TrajectoryPoint>> ReadTrajectoryFile(const std::strin
 // The per-frame known joints of `dance` from a dance-mask/v1 file (times on the audio timeline).
 absl::StatusOr<std::vector<JointMask>> ReadMaskFile(const std::string& path, const MotionFile& dance);
 
+// The same from text already read (`path` names it in errors): for network input and fuzzing.
+absl::StatusOr<MotionFile> ParseMotionJson(const std::string& text);
+absl::StatusOr<std::vector<TrajectoryPoint>> ParseTrajectoryJson(const std::string& text,
+                                                                 const std::string& path = "trajectory");
+absl::StatusOr<std::vector<JointMask>> ParseMaskJson(const std::string& text, const MotionFile& dance,
+                                                     const std::string& path = "mask");
 // Parses a BVH text whose joints carry the SMPL joint names (as dance-generate's BVH export writes them).
 absl::StatusOr<MotionFile> ParseBvh(const std::string& text);
 

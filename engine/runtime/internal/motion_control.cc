@@ -46,7 +46,45 @@ Eigen::Vector3f FromBody(const Eigen::Vector3d& b, const Eigen::Vector3f& pelvis
                          static_cast<float>(-s * b.x() + c * b.z())) + pelvis;
 }
 
+// Unit vector from a toward b by t along the great circle (a and b unit length).
+Eigen::Vector3d Slerp(const Eigen::Vector3d& a, const Eigen::Vector3d& b, double t) {
+  const double d = std::clamp(a.dot(b), -1.0, 1.0);
+  const double angle = std::acos(d);
+  if (angle < 1e-6) return a;
+  Eigen::Vector3d to = b;
+  if (M_PI - angle < 1e-3) {
+    // Opposite: turn about an axis perpendicular to a (the vertical if a is not vertical).
+    Eigen::Vector3d axis = a.cross(Eigen::Vector3d::UnitY());
+    if (axis.norm() < 1e-6) axis = a.cross(Eigen::Vector3d::UnitX());
+    to = Eigen::AngleAxisd(M_PI * t, axis.normalized()) * a;
+    return to.normalized();
+  }
+  const double s = std::sin(angle);
+  return (std::sin((1.0 - t) * angle) / s * a + std::sin(t * angle) / s * to).normalized();
+}
+
 }  // namespace
+
+// Blends two poses by `t` (0 = a, 1 = b): the pelvis linearly, every bone's direction along the great
+// circle, at the skeleton's bone lengths. (Blending positions would pass a limb that points the other way
+// through zero length, where its direction, and the hand at its end, jumps.) Joints outside `mask` keep
+// a's bone direction.
+void MotionControl::BlendPoses(const JointPositions& a, const JointPositions& b, double t, JointMask mask,
+                               JointPositions* out) const {
+  const Skeleton& sk = model_->skeleton();
+  JointPositions r;
+  r[0] = (mask & 1) ? Eigen::Vector3f(a[0] + static_cast<float>(t) * (b[0] - a[0])) : a[0];
+  for (int j = 1; j < kNumJoints; ++j) {
+    const int parent = sk.parents[j];
+    Eigen::Vector3d da = (a[j] - a[parent]).cast<double>();
+    Eigen::Vector3d db = (b[j] - b[parent]).cast<double>();
+    const double la = da.norm(), lb = db.norm();
+    Eigen::Vector3d dir = la > 1e-9 ? Eigen::Vector3d(da / la) : Eigen::Vector3d::UnitY();
+    if ((mask >> j & 1) && lb > 1e-9) dir = Slerp(dir, db / lb, t);
+    r[j] = r[parent] + (sk.bone_lengths[j] * dir).cast<float>();
+  }
+  *out = r;
+}
 
 MotionControl::MotionControl(const Model& model) : model_(&model), reconstructor_(model.skeleton()) {}
 
@@ -79,6 +117,7 @@ absl::StatusOr<std::shared_ptr<const ControlPlan>> MotionControl::MakePlan(const
     for (int stream = 0; stream < 2; ++stream) {
       std::vector<int>& codes = plan->codes[stream];
       codes.assign(n, -1);
+      plan->forceable[stream].assign(n, 0);
       // Each run of frames that know the whole stream is encoded on its own (the encoder looks ahead and
       // behind within the run; a single key frame is held for one code).
       for (int a = 0; a < n;) {
@@ -91,7 +130,10 @@ absl::StatusOr<std::shared_ptr<const ControlPlan>> MotionControl::MakePlan(const
         const std::vector<JointPositions> run(t.positions.begin() + a, t.positions.begin() + b);
         const PoseFeatures f = EncodePoseFeatures(run);
         const std::vector<int> run_codes = encoder[stream]->Encode(stream == 0 ? f.upper : f.lower);
-        for (int i = a; i < b; ++i) codes[i] = run_codes[(i - a) / encoder[stream]->downsample()];
+        for (int i = a; i < b; ++i) {
+          codes[i] = run_codes[(i - a) / encoder[stream]->downsample()];
+          plan->forceable[stream][i] = b - a >= encoder[stream]->downsample();
+        }
         a = b;
       }
     }
@@ -100,6 +142,12 @@ absl::StatusOr<std::shared_ptr<const ControlPlan>> MotionControl::MakePlan(const
     }
   }
   return std::shared_ptr<const ControlPlan>(std::move(plan));
+}
+
+int MotionControl::ForcedCode(int stream, int64_t m) const {
+  const MotionTrack& t = plan().controls.motion;
+  if (m < t.first_frame || m >= t.end_frame() || !plan().forceable[stream][m - t.first_frame]) return -1;
+  return plan().codes[stream][m - t.first_frame];
 }
 
 absl::Status MotionControl::Validate(const MotionControlState& state) const {
@@ -175,7 +223,7 @@ StepControl MotionControl::ForStep(double first_real, double last_real, const Po
       int best = -1;
       int64_t best_distance = 0;
       for (int64_t m = lo; m <= hi; ++m) {
-        const int code = GivenCode(stream, m);
+        const int code = ForcedCode(stream, m);
         if (code >= 0 && (best < 0 || std::abs(m - mid) < best_distance)) {
           best = code;
           best_distance = std::abs(m - mid);
@@ -335,49 +383,41 @@ bool MotionControl::Composite(PoseFrame& frame) {
     state_.last_pose = p;
     return (known & LowerMask()) == LowerMask();
   }
-  bool blended = false;
   const double gen_yaw = HipYaw(p);
   // Out of a known frame: its pose, carried by the generated root, fades into the generated pose.
   const double out_frames = w.blend_out_s * audio::kFrameRate;
   if (state_.last_known >= 0 && m - state_.last_known < out_frames) {
     const double a = SmoothStep(static_cast<double>(m - state_.last_known) / out_frames);
     const double last_yaw = HipYaw(state_.last_pose);
-    // The pelvis height first (the known frame's fading into the generated one), then every joint in the
-    // body frame around that pelvis.
-    Eigen::Vector3f pelvis = p[0];
-    pelvis.y() = static_cast<float>((1.0 - a) * state_.last_pose[0].y() + a * p[0].y());
-    for (int j = 1; j < kNumJoints; ++j) {
-      const Eigen::Vector3d carried = ToBody(state_.last_pose[j], state_.last_pose[0], last_yaw);
-      const Eigen::Vector3d generated = ToBody(p[j], p[0], gen_yaw);
-      p[j] = FromBody((1.0 - a) * carried + a * generated, pelvis, gen_yaw);
+    // The known frame's pose carried on the generated root and facing (its height too), fading into the
+    // generated pose bone by bone.
+    JointPositions carried;
+    for (int j = 0; j < kNumJoints; ++j) {
+      carried[j] = FromBody(ToBody(state_.last_pose[j], state_.last_pose[0], last_yaw), p[0], gen_yaw);
     }
-    p[0] = pelvis;
-    blended = true;
+    carried[0].y() = state_.last_pose[0].y();
+    for (int j = 1; j < kNumJoints; ++j) carried[j].y() += state_.last_pose[0].y() - p[0].y();
+    BlendPoses(carried, p, a, kAllJoints, &p);
   }
-  // Into the next known frame. A known root: the whole body moves toward the key in global positions (the
-  // root was steered close above; blending positions, not a facing angle, has no wrap-around to jump
-  // at). Otherwise the known joints move toward it in the body frame.
+  // Into the next known frame: a known root, the whole body blends toward the key (the root was steered
+  // close above; bone directions, not a facing angle, so nothing wraps around); otherwise the key's known
+  // joints, placed on the generated pelvis and facing.
   const double in_frames = w.blend_in_s * audio::kFrameRate;
   if (next != plan().known_frames.end() && *next - m < in_frames) {
     const JointPositions& key = t.positions[*next - t.first_frame];
     const JointMask key_known = t.KnownAt(*next);
     const float b = static_cast<float>(SmoothStep(1.0 - static_cast<double>(*next - m) / in_frames));
     if (key_known & 1) {
-      for (int j = 0; j < kNumJoints; ++j) {
-        if (key_known >> j & 1) p[j] += b * (key[j] - p[j]);
-      }
+      BlendPoses(p, key, b, key_known, &p);
     } else {
+      JointPositions placed = p;  // the key's known joints placed on the generated pelvis and facing
       const double key_yaw = HipYaw(key);
       for (int j = 1; j < kNumJoints; ++j) {
-        if (!(key_known >> j & 1)) continue;
-        const Eigen::Vector3d gb = ToBody(p[j], p[0], gen_yaw);
-        const Eigen::Vector3d kb = ToBody(key[j], key[0], key_yaw);
-        p[j] = FromBody((1.0 - b) * gb + b * kb, p[0], gen_yaw);
+        if (key_known >> j & 1) placed[j] = FromBody(ToBody(key[j], key[0], key_yaw), p[0], gen_yaw);
       }
+      BlendPoses(p, placed, b, key_known, &p);
     }
-    blended = true;
   }
-  if (blended) reconstructor_.ProjectBoneLengths(p);
   return false;
 }
 

@@ -35,6 +35,10 @@ inline constexpr int kTrajectoryCandidates = 32;
 struct ControlPlan {
   Controls controls;
   std::vector<int> codes[2];         // per track frame: the given code of each stream, or -1
+  // Whether a frame's codes may be forced: a run of at least one code's frames knows the stream. A key
+  // pose alone is only pulled toward (forcing its held code jerked the decoded motion 0.27 s on either
+  // side of the key; docs/controls.md).
+  std::vector<uint8_t> forceable[2];
   std::vector<int64_t> known_frames; // audio frames with any known joint, ascending
 };
 
@@ -90,9 +94,13 @@ class MotionControl {
   const ControlPlan& plan() const { return *state_.plan; }
   // The code of `stream` given at audio frame m (-1 if that stream's joints are not all known there).
   int GivenCode(int stream, int64_t m) const;
+  // The same where the code may be forced (ControlPlan::forceable), else -1.
+  int ForcedCode(int stream, int64_t m) const;
   // The path point at audio time t (clamped to the path's ends); facing if the points give it.
   Eigen::Vector2d PathAt(double t_s) const;
   bool PathFacingAt(double t_s, double* facing) const;
+  void BlendPoses(const JointPositions& a, const JointPositions& b, double t, JointMask mask,
+                  JointPositions* out) const;
   // Applies the alignment to `p` (in place).
   void Align(JointPositions& p) const;
   // Turns the alignment (and `p`, already aligned) by `dyaw` about `pivot`, then moves both by (dx, dz).
