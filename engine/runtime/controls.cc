@@ -50,6 +50,9 @@ absl::StatusOr<MotionTrack> KeyframeTrack(const std::vector<JointPositions>& pos
                                                      ", ", frames[i], ") are closer than one step (4 frames)"));
     }
   }
+  if (frames.back() - frames.front() >= kMaxTrackFrames) {
+    return absl::InvalidArgumentError("keyframes: the keys span more than 3 hours");
+  }
   t.first_frame = frames.front();
   const size_t n = static_cast<size_t>(frames.back() - frames.front() + 1);
   t.positions.assign(n, poses.front());
@@ -103,6 +106,9 @@ absl::Status ValidateControls(const Controls& c) {
                                                    t.known.size(), " masks"));
   }
   if (!t.empty() && t.first_frame < 0) return absl::InvalidArgumentError("controls: motion starts before the audio");
+  if (static_cast<int64_t>(t.positions.size()) > kMaxTrackFrames || t.first_frame > kMaxTrackFrames) {
+    return absl::InvalidArgumentError("controls: motion spans or starts more than 3 hours into the audio");
+  }
   for (size_t i = 0; i < t.positions.size(); ++i) {
     if (t.known[i] & ~kAllJoints) {
       return absl::InvalidArgumentError(absl::StrCat("controls: frame ", i, "'s mask names joints beyond the 24"));
@@ -118,10 +124,10 @@ absl::Status ValidateControls(const Controls& c) {
   }
   for (size_t i = 0; i < c.trajectory.size(); ++i) {
     const TrajectoryPoint& p = c.trajectory[i];
-    if (!std::isfinite(p.t_s) || p.t_s < 0.0 || !std::isfinite(p.x) || !std::isfinite(p.z) ||
+    if (!std::isfinite(p.t_s) || p.t_s < 0.0 || p.t_s > 1e6 || !std::isfinite(p.x) || !std::isfinite(p.z) ||
         std::abs(p.x) > 1000.0f || std::abs(p.z) > 1000.0f || (p.facing && !std::isfinite(*p.facing))) {
       return absl::InvalidArgumentError(absl::StrCat("controls: trajectory point ", i,
-                                                     " has a negative or non-finite time or coordinate"));
+                                                     " has a time outside [0, 1e6] s or a non-finite or absurd coordinate"));
     }
     if (i > 0 && !(p.t_s > c.trajectory[i - 1].t_s)) {
       return absl::InvalidArgumentError(absl::StrCat("controls: trajectory point ", i, " (t = ", p.t_s,

@@ -38,6 +38,9 @@
 
 namespace dance::engine {
 
+// The longest a MotionTrack may span: 3 hours at 30 fps (93 MB of positions).
+inline constexpr int64_t kMaxTrackFrames = int64_t{30} * 3600 * 3;
+
 // Bit j of a joint mask is joint j (SMPL order).
 using JointMask = uint32_t;
 inline constexpr JointMask kAllJoints = (JointMask{1} << kNumJoints) - 1;
@@ -63,12 +66,14 @@ MotionTrack SeedTrack(std::vector<JointPositions> clip, int64_t first_frame);
 // One half of a dance given on every frame (upper = true: the 15 upper joints; false: the 9 lower ones).
 MotionTrack GivenHalfTrack(std::vector<JointPositions> motion, int64_t first_frame, bool upper);
 // Key poses at audio frames `frames` (one per pose): every joint known on those frames only.
-// InvalidArgument unless the frames are >= 0, ascending and at least one step (4 frames) apart.
+// InvalidArgument unless the frames are >= 0, ascending, at least one step (4 frames) apart and within
+// kMaxTrackFrames of each other.
 absl::StatusOr<MotionTrack> KeyframeTrack(const std::vector<JointPositions>& poses,
                                           const std::vector<int64_t>& frames);
 // A recorded dance with a mask: known[i] per frame (e.g. from a dance-mask/v1 file).
 MotionTrack MaskedTrack(std::vector<JointPositions> dance, int64_t first_frame, std::vector<JointMask> known);
-// The union of two tracks: where both know a joint, `b` wins.
+// The union of two tracks: where both know a joint, `b` wins. The result spans both (the caller keeps
+// that within kMaxTrackFrames; ValidateControls refuses more).
 MotionTrack CombineTracks(const MotionTrack& a, const MotionTrack& b);
 
 struct TrajectoryPoint {

@@ -19,6 +19,7 @@ constexpr const char* kSmplNames[kNumJoints] = {
     "neck",       "left_collar",    "right_collar",   "head",        "left_shoulder", "right_shoulder",
     "left_elbow", "right_elbow",    "left_wrist",     "right_wrist", "left_hand",   "right_hand"};
 constexpr double kFps = 30.0;
+constexpr double kMaxTimeS = 1e6;  // audio times beyond 11 days are refused (frame indices stay exact)
 
 absl::StatusOr<std::string> ReadText(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
@@ -32,6 +33,19 @@ absl::StatusOr<nlohmann::json> ParseJson(const std::string& text, const std::str
   nlohmann::json doc = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/false);
   if (doc.is_discarded()) return absl::InvalidArgumentError(absl::StrCat("'", path, "' is not JSON"));
   return doc;
+}
+
+// Whether `d` is an object whose "format" is the string `name`. (nlohmann's value() throws on a key of
+// another type: every field read here is checked for its type first.)
+bool IsFormat(const nlohmann::json& d, const char* name) {
+  return d.is_object() && d.contains("format") && d["format"].is_string() && d["format"].get<std::string>() == name;
+}
+
+// The number at `key`, `fallback` if absent; InvalidArgument if present and not a number.
+absl::StatusOr<double> NumberOr(const nlohmann::json& d, const char* key, double fallback, const std::string& path) {
+  if (!d.contains(key)) return fallback;
+  if (!d[key].is_number()) return absl::InvalidArgumentError(absl::StrCat("'", path, "': \"", key, "\" is not a number"));
+  return d[key].get<double>();
 }
 
 // Resamples `in` at `fps` to 30 fps (linear interpolation; the identity at 30).
@@ -66,7 +80,7 @@ absl::StatusOr<MotionFile> MotionFromJson(const std::string& text, const std::st
   absl::StatusOr<nlohmann::json> doc = ParseJson(text, path);
   if (!doc.ok()) return doc.status();
   const nlohmann::json& d = *doc;
-  if (!d.is_object() || d.value("format", std::string()) != "dance-motion/v1") {
+  if (!IsFormat(d, "dance-motion/v1")) {
     return absl::InvalidArgumentError(absl::StrCat("'", path, "': not a dance-motion/v1 file (\"format\")"));
   }
   if (d.contains("joint_names")) {
@@ -81,7 +95,9 @@ absl::StatusOr<MotionFile> MotionFromJson(const std::string& text, const std::st
       }
     }
   }
-  const double fps = d.value("fps", kFps);
+  absl::StatusOr<double> fps_or = NumberOr(d, "fps", kFps, path);
+  if (!fps_or.ok()) return fps_or.status();
+  const double fps = *fps_or;
   if (!(fps >= 1.0 && fps <= 1000.0)) return absl::InvalidArgumentError(absl::StrCat("'", path, "': bad fps"));
   if (!d.contains("positions") || !d["positions"].is_array()) {
     return absl::InvalidArgumentError(absl::StrCat("'", path, "': no \"positions\" array"));
@@ -105,9 +121,11 @@ absl::StatusOr<MotionFile> MotionFromJson(const std::string& text, const std::st
   if (absl::Status s = CheckPositions(pos, absl::StrCat("'", path, "'")); !s.ok()) return s;
   MotionFile m;
   m.positions = ToThirtyFps(pos, fps);
-  const double offset = d.value("audio_offset_s", 0.0);
-  if (!std::isfinite(offset) || offset < 0.0) {
-    return absl::InvalidArgumentError(absl::StrCat("'", path, "': audio_offset_s must be >= 0"));
+  absl::StatusOr<double> offset_or = NumberOr(d, "audio_offset_s", 0.0, path);
+  if (!offset_or.ok()) return offset_or.status();
+  const double offset = *offset_or;
+  if (!std::isfinite(offset) || offset < 0.0 || offset > kMaxTimeS) {
+    return absl::InvalidArgumentError(absl::StrCat("'", path, "': audio_offset_s must be in [0, ", kMaxTimeS, "] s"));
   }
   m.first_frame = std::lround(offset * kFps);
   m.offset_s = offset;
@@ -118,8 +136,8 @@ absl::StatusOr<MotionFile> MotionFromJson(const std::string& text, const std::st
     }
     if (std::abs(fps - kFps) > 1e-6) m.positions = pos;  // keyframes are not resampled: one pose each
     for (const nlohmann::json& t : d["times_s"]) {
-      if (!t.is_number() || !std::isfinite(t.get<double>()) || t.get<double>() < 0.0) {
-        return absl::InvalidArgumentError(absl::StrCat("'", path, "': times_s must be numbers >= 0"));
+      if (!t.is_number() || !std::isfinite(t.get<double>()) || t.get<double>() < 0.0 || t.get<double>() > kMaxTimeS) {
+        return absl::InvalidArgumentError(absl::StrCat("'", path, "': times_s must be numbers in [0, ", kMaxTimeS, "] s"));
       }
       m.times_s.push_back(t.get<double>());
     }
@@ -271,7 +289,7 @@ absl::StatusOr<std::vector<TrajectoryPoint>> ParseTrajectoryJson(const std::stri
   absl::StatusOr<nlohmann::json> doc = ParseJson(text, path);
   if (!doc.ok()) return doc.status();
   const nlohmann::json& d = *doc;
-  if (!d.is_object() || d.value("format", std::string()) != "dance-trajectory/v1" || !d.contains("points") ||
+  if (!IsFormat(d, "dance-trajectory/v1") || !d.contains("points") ||
       !d["points"].is_array()) {
     return absl::InvalidArgumentError(absl::StrCat("'", path, "': not a dance-trajectory/v1 file with \"points\""));
   }
@@ -308,7 +326,7 @@ absl::StatusOr<std::vector<JointMask>> ParseMaskJson(const std::string& text, co
   absl::StatusOr<nlohmann::json> doc = ParseJson(text, path);
   if (!doc.ok()) return doc.status();
   const nlohmann::json& d = *doc;
-  if (!d.is_object() || d.value("format", std::string()) != "dance-mask/v1" || !d.contains("known") ||
+  if (!IsFormat(d, "dance-mask/v1") || !d.contains("known") ||
       !d["known"].is_array()) {
     return absl::InvalidArgumentError(absl::StrCat("'", path, "': not a dance-mask/v1 file with \"known\""));
   }

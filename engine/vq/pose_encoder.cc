@@ -89,6 +89,9 @@ absl::StatusOr<VqEncoder> VqEncoder::Load(const WeightsFile& file, const std::st
         return BadOps(part, "conv without \"w\"/\"b\" tensor names");
       }
       Conv conv;
+      for (const char* key : {"dilation", "stride", "pad"}) {
+        if (jop.contains(key) && !jop[key].is_number_integer()) return BadOps(part, absl::StrCat("conv ", key, " is not an integer"));
+      }
       conv.dilation = jop.value("dilation", 1);
       conv.stride = jop.value("stride", 1);
       conv.pad = jop.value("pad", 0);

@@ -366,6 +366,13 @@ TEST(Controls, MotionFilesReadBackWhatTheWritersWrote) {
   EXPECT_TRUE(absl::StrContains(other.status().message(), "missing joints: pelvis")) << other.status();
   std::filesystem::remove(json);
   std::filesystem::remove(bvh);
+  // Fields of the wrong type are errors, not exceptions (found by motion_fuzz: "format" as a list).
+  EXPECT_EQ(ParseMaskJson(R"({"format": [1], "known": []})", *a).status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(ParseMotionJson(R"({"format": "dance-motion/v1", "fps": "thirty", "positions": []})").status().code(),
+            absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(ParseTrajectoryJson(R"({"format": 7, "points": []})").status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(ParseMotionJson(R"({"format": "dance-motion/v1", "positions": [[[0, 1, 0]]]})").status().code(),
+            absl::StatusCode::kInvalidArgument);  // 1 joint, not 24
 }
 
 }  // namespace
