@@ -1,9 +1,9 @@
 // SessionHub: the registry of live sessions, admission control and the scheduler pool.
 //
-// Admit() validates nothing about the protocol (the transports do that); it enforces capacity
-// (RESOURCE_EXHAUSTED "server at capacity: N of N sessions"), refuses during drain (UNAVAILABLE), opens the
-// engine stream (INVALID_ARGUMENT for configs the engine refuses) and hands the session to the least
-// loaded scheduler. Sessions leave the registry when their scheduler completes them.
+// Admit() validates nothing about the protocol (the transports do that before they call it, with the
+// rules of stream_request.h); it enforces capacity (RESOURCE_EXHAUSTED "server at capacity: N of N
+// sessions"), refuses during drain (UNAVAILABLE), opens the engine stream (INVALID_ARGUMENT for configs the
+// engine refuses) and hands the session to the least loaded scheduler. Sessions leave the registry when their scheduler completes them.
 //
 // Usage:
 //   SessionHub hub(backend.get(), HubOptions{.max_sessions = 200}, &metrics);
