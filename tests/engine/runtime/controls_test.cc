@@ -52,6 +52,14 @@ std::vector<PoseFrame> Dance(const Controls& controls, size_t chunk = 4096, uint
   return out;
 }
 
+TrajectoryPoint Point(double t, float x = 0.0f, float z = 0.0f) {
+  TrajectoryPoint p;
+  p.t_s = t;
+  p.x = x;
+  p.z = z;
+  return p;
+}
+
 // The reference dance the controls are taken from: the model's own, with another seed.
 const std::vector<PoseFrame>& Reference() {
   static const std::vector<PoseFrame> ref = Dance({}, 4096, /*seed=*/11);
@@ -189,7 +197,7 @@ TEST(Controls, InpaintingKeepsTheKnownPartAndRedancesTheRest) {
 TEST(Controls, TrajectoryIsFollowed) {
   ASSERT_NE(Shipped(), nullptr);
   Controls c;
-  for (int t = 0; t <= 24; ++t) c.trajectory.push_back({.t_s = static_cast<double>(t), .x = 0.25f * t, .z = 0.0f});
+  for (int t = 0; t <= 24; ++t) c.trajectory.push_back(Point(static_cast<double>(t), 0.25f * t, 0.0f));
   const std::vector<PoseFrame> free = Dance({});
   const std::vector<PoseFrame> out = Dance(c);
   double err = 0.0, free_err = 0.0;
@@ -215,7 +223,7 @@ TEST(Controls, SnapshotsAndChunkingStayExactWithControls) {
   absl::StatusOr<MotionTrack> keys = KeyframeTrack({ref[400].positions}, {ref[400].index});
   ASSERT_TRUE(keys.ok());
   c.motion = CombineTracks(c.motion, *keys);
-  c.trajectory = {{.t_s = 0.0, .x = 0.0f, .z = 0.0f}, {.t_s = 20.0, .x = 2.0f, .z = 1.0f}};
+  c.trajectory = {Point(0.0, 0.0f, 0.0f), Point(20.0, 2.0f, 1.0f)};
   const std::vector<PoseFrame> a = Dance(c, 4096);
   const std::vector<PoseFrame> b = Dance(c, 777);
   ASSERT_EQ(a.size(), b.size());
@@ -272,12 +280,12 @@ TEST(Controls, SetMidStreamTravelInSnapshotsAndBadOnesChangeNothing) {
   const size_t before = out.size();
   // A bad update is refused and changes nothing.
   Controls bad;
-  bad.trajectory = {{.t_s = 14.0}, {.t_s = 13.0}};
+  bad.trajectory = {Point(14.0), Point(13.0)};
   EXPECT_EQ((*s)->SetControls(bad).code(), absl::StatusCode::kInvalidArgument);
   // A path from where the dancer is now to 3 m along +x by the end.
   const Eigen::Vector3f here = out.back().positions[0];
   Controls path;
-  path.trajectory = {{.t_s = 12.5, .x = here.x(), .z = here.z()}, {.t_s = 23.0, .x = here.x() + 3.0f, .z = here.z()}};
+  path.trajectory = {Point(12.5, here.x(), here.z()), Point(23.0, here.x() + 3.0f, here.z())};
   ASSERT_TRUE((*s)->SetControls(path).ok());
   absl::StatusOr<SessionSnapshot> snap = (*s)->Snapshot();
   ASSERT_TRUE(snap.ok());
@@ -327,7 +335,7 @@ TEST(Controls, BadInputIsRefusedWithAClearError) {
   shape.motion.known.pop_back();
   refused(shape, "masks");
   Controls order;
-  order.trajectory = {{.t_s = 2.0}, {.t_s = 1.0}};
+  order.trajectory = {Point(2.0), Point(1.0)};
   refused(order, "not after point 0");
   EXPECT_FALSE(KeyframeTrack({ref[0].positions, ref[1].positions}, {10, 12}).ok());
   EXPECT_TRUE(absl::StrContains(KeyframeTrack({ref[0].positions, ref[1].positions}, {10, 12}).status().message(),
