@@ -345,7 +345,10 @@ bool MotionControl::Composite(PoseFrame& frame) {
         // The correction's velocity follows the wanted one through a low-pass (a step change of it is
         // a jerk the eye sees as shaking).
         Eigen::Vector2d e = kTrajectoryGain * (PathAt(t_s) - Eigen::Vector2d(p[0].x(), p[0].z()));
-        const double cap = w.root_correction_mps / audio::kFrameRate;
+        // The cap: root_correction_mps, or 1.5x the path's own speed where the path is faster (a fast
+        // travelling dance outran a fixed cap: the tango's real root reaches 2.9 m/s).
+        const double path_speed = (PathAt(t_s + 0.1) - PathAt(t_s - 0.1)).norm() / 0.2;
+        const double cap = std::max<double>(w.root_correction_mps, 1.5 * path_speed) / audio::kFrameRate;
         if (e.norm() > cap) e *= cap / e.norm();
         e = kCorrectionSmoothing * Eigen::Vector2d(state_.correction_x, state_.correction_z) +
             (1.0 - kCorrectionSmoothing) * e;
