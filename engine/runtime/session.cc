@@ -201,15 +201,15 @@ absl::Status StepBatch(absl::Span<Session* const> sessions) {
       const int lane = first_lane[slot++];
       if (lane < 0) continue;
       Session* s = sessions[i];
+      const StepLogits logits = s->lanes_.Logits(workspace, lane);
       StepControl control;
       if (s->control_.active()) {
         double first_real = 0.0, last_real = 0.0, rate = 1.0;
         s->time_.EmittedRealSpan(s->lanes_.step() - 1, &first_real, &last_real, &rate);
-        control = s->control_.ForStep(first_real, last_real, s->body_.state().pose, rate,
-                                      s->body_.state().lower, s->lanes_.Logits(workspace, lane).cond.l);
+        control = s->control_.ForStep(first_real, last_real, s->body_.state().pose, rate, s->body_.state().lower,
+                                      logits.cond.l);
       }
-      const auto [upper, lower] = s->policy_.Sample(s->lanes_.Logits(workspace, lane), s->body_.yaw(),
-                                                    s->control_.active() ? &control : nullptr);
+      const auto [upper, lower] = s->policy_.Sample(logits, s->body_.yaw(), s->control_.active() ? &control : nullptr);
       s->lanes_.SetCodes(upper, lower);
       group.push_back(s);
     }

@@ -142,16 +142,14 @@ absl::StatusOr<std::vector<std::pair<std::string, float>>> ParseStyle(const std:
 // The controls the flags name, combined into one Controls (`names` lists them for the dance file).
 absl::StatusOr<Controls> BuildControls(const Flags& f, double duration_s, std::vector<std::string>* names) {
   Controls c;
-  // Every motion file must start within the song (so combined tracks stay as long as the song).
+  // Every motion file must start within the song (ValidateControls bounds how long a track may be).
   const int64_t song_frames = static_cast<int64_t>(std::ceil(duration_s * 30.0));
   auto with = [&](const std::string& path, const char* name) -> absl::StatusOr<MotionFile> {
     names->push_back(name);
     absl::StatusOr<MotionFile> m = ReadMotionFile(path);
     if (!m.ok()) return m.status();
     const int64_t first = m->times_s.empty() ? m->first_frame : std::lround(m->times_s.front() * 30.0);
-    const int64_t last = m->times_s.empty() ? m->first_frame + static_cast<int64_t>(m->positions.size())
-                                            : std::lround(m->times_s.back() * 30.0);
-    if (first >= song_frames || last > song_frames + 30 * 3600) {
+    if (first >= song_frames) {
       return absl::InvalidArgumentError(absl::StrCat("'", path, "': the motion starts at ", first / 30.0,
                                                      " s, past the song's ", duration_s, " s"));
     }

@@ -15,9 +15,9 @@ absl::Status BadOps(const std::string& part, const std::string& what) {
   return absl::InvalidArgumentError(absl::StrCat("weights metadata: vq.", part, ".encoder_ops: ", what));
 }
 
-double WrapAngle(double a) { return M_PI - std::fmod(std::fmod(M_PI - a, 2 * M_PI) + 2 * M_PI, 2 * M_PI); }
-
 }  // namespace
+
+double WrapAngle(double a) { return M_PI - std::fmod(std::fmod(M_PI - a, 2 * M_PI) + 2 * M_PI, 2 * M_PI); }
 
 double FacingYaw(const JointPositions& p) {
   const Eigen::Vector3d across = (p[kLeftHip] - p[kRightHip] + p[kLeftShoulder] - p[kRightShoulder]).cast<double>();

@@ -36,6 +36,9 @@ struct PoseFeatures {
   std::vector<Eigen::Vector2d> root_xz;  // (T) the pelvis on the floor, metres
 };
 
+// An angle wrapped to (-pi, pi] (the pose representation's yaw rate; training/data/representation.py).
+double WrapAngle(double a);
+
 // The facing yaw of a pose: forward = across x up, across = (left_hip - right_hip) + (left_shoulder -
 // right_shoulder); 0 faces +Z.
 double FacingYaw(const JointPositions& positions);

@@ -10,8 +10,6 @@
 namespace dance::engine {
 namespace {
 
-double WrapAngle(double a) { return a - 2.0 * M_PI * std::floor((a + M_PI) / (2.0 * M_PI)); }
-
 // The facing of the pelvis alone (the hips), 0 = +Z: the body frame the halves are composited in, so an
 // upper body given relative to its hips comes out exactly so relative to the generated hips.
 double HipYaw(const JointPositions& p) {
@@ -86,7 +84,7 @@ void MotionControl::BlendPoses(const JointPositions& a, const JointPositions& b,
   *out = r;
 }
 
-MotionControl::MotionControl(const Model& model) : model_(&model), reconstructor_(model.skeleton()) {}
+MotionControl::MotionControl(const Model& model) : model_(&model) {}
 
 absl::StatusOr<MotionControl> MotionControl::Create(const Model& model, const Controls& controls) {
   MotionControl mc(model);
@@ -292,13 +290,18 @@ StepControl MotionControl::ForStep(double first_real, double last_real, const Po
   return sc;
 }
 
-void MotionControl::TurnAndMove(double dyaw, const Eigen::Vector3f& pivot, double dx, double dz, JointPositions& p) {
+void MotionControl::TurnAndMoveAlignment(double dyaw, const Eigen::Vector3f& pivot, double dx, double dz) {
   // A' = T(pivot) R(dyaw) T(-pivot) A, then + (dx, dz): t' = R(dyaw) (t - pivot) + pivot + d.
   const double c = std::cos(dyaw), s = std::sin(dyaw);
   const double tx = state_.x - pivot.x(), tz = state_.z - pivot.z();
   state_.yaw += dyaw;
   state_.x = c * tx + s * tz + pivot.x() + dx;
   state_.z = -s * tx + c * tz + pivot.z() + dz;
+}
+
+void MotionControl::TurnAndMove(double dyaw, const Eigen::Vector3f& pivot, double dx, double dz, JointPositions& p) {
+  TurnAndMoveAlignment(dyaw, pivot, dx, dz);
+  const double c = std::cos(dyaw), s = std::sin(dyaw);
   for (Eigen::Vector3f& q : p) {
     const double qx = q.x() - pivot.x(), qz = q.z() - pivot.z();
     q.x() = static_cast<float>(c * qx + s * qz + pivot.x() + dx);
@@ -371,8 +374,8 @@ bool MotionControl::Composite(PoseFrame& frame) {
       // it, and the generated dance is re-aligned (turned about its pelvis and moved onto the given one)
       // so it continues from the given root.
       const Eigen::Vector3f pelvis = p[0];
-      JointPositions moved = p;
-      TurnAndMove(WrapAngle(given_yaw - gen_yaw), pelvis, given[0].x() - pelvis.x(), given[0].z() - pelvis.z(), moved);
+      TurnAndMoveAlignment(WrapAngle(given_yaw - gen_yaw), pelvis, given[0].x() - pelvis.x(),
+                           given[0].z() - pelvis.z());
       for (int j = 0; j < kNumJoints; ++j) {
         p[j] = (known >> j & 1) ? given[j] : FromBody(ToBody(p[j], pelvis, gen_yaw), given[0], given_yaw);
       }

@@ -22,7 +22,7 @@
 #include "engine/runtime/internal/sampling_policy.h"
 #include "engine/runtime/model.h"
 #include "engine/runtime/pose_frame.h"
-#include "engine/vq/pose_reconstructor.h"
+#include "engine/vq/pose_reconstructor.h"  // PoseState
 #include "engine/vq/vq_decoder.h"
 
 namespace dance::engine {
@@ -103,11 +103,12 @@ class MotionControl {
                   JointPositions* out) const;
   // Applies the alignment to `p` (in place).
   void Align(JointPositions& p) const;
-  // Turns the alignment (and `p`, already aligned) by `dyaw` about `pivot`, then moves both by (dx, dz).
+  // Turns the alignment by `dyaw` about `pivot` (output coordinates), then moves it by (dx, dz).
+  void TurnAndMoveAlignment(double dyaw, const Eigen::Vector3f& pivot, double dx, double dz);
+  // The same, and moves `p` (already aligned) with it.
   void TurnAndMove(double dyaw, const Eigen::Vector3f& pivot, double dx, double dz, JointPositions& p);
 
   const Model* model_;
-  PoseReconstructor reconstructor_;
   std::vector<float> lower_bias_;   // (K) scratch of the trajectory
   std::vector<int> candidates_;     // scratch of the trajectory: candidate lower codes
   std::vector<VqDecoderState> candidate_states_;

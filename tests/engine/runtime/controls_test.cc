@@ -12,6 +12,7 @@
 #include "absl/strings/match.h"
 #include "engine/engine.h"
 #include "gtest/gtest.h"
+#include "tests/engine/runtime/testing/session_run.h"
 #include "tests/engine/runtime/testing/tiny_model.h"
 
 namespace dance::engine {
@@ -39,17 +40,7 @@ std::vector<PoseFrame> Dance(const Controls& controls, size_t chunk = 4096, uint
   absl::StatusOr<std::unique_ptr<Session>> s = Session::Create(Shipped(), options);
   EXPECT_TRUE(s.ok()) << s.status();
   if (!s.ok()) return {};
-  const std::vector<float>& audio = Audio();
-  std::vector<PoseFrame> out;
-  for (size_t pos = 0; pos < audio.size(); pos += chunk) {
-    const size_t n = std::min(chunk, audio.size() - pos);
-    EXPECT_TRUE((*s)->PushAudio(absl::MakeConstSpan(audio.data() + pos, n)).ok());
-    while ((*s)->StepsReady() > 0) EXPECT_TRUE((*s)->Step().ok());
-  }
-  (*s)->EndOfAudio();
-  while ((*s)->StepsReady() > 0) EXPECT_TRUE((*s)->Step().ok());
-  (*s)->PopFrames(&out);
-  return out;
+  return testing::RunStream(**s, Audio(), {chunk});
 }
 
 TrajectoryPoint Point(double t, float x = 0.0f, float z = 0.0f) {

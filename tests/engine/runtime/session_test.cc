@@ -11,12 +11,15 @@
 
 #include "absl/strings/match.h"
 #include "gtest/gtest.h"
+#include "tests/engine/runtime/testing/session_run.h"
 #include "tests/engine/runtime/testing/tiny_model.h"
 
 namespace dance::engine {
 namespace {
 
+using testing::DrainSteps;
 using testing::LoadTinyModel;
+using testing::RunStream;
 using testing::TestAudio;
 
 std::unique_ptr<Session> MakeSession(std::shared_ptr<const Model> model, SessionOptions opt = {}) {
@@ -40,10 +43,6 @@ SamplingOptions Sampling(float temperature, int top_k = 0, float guidance = 1.0f
   return s;
 }
 
-void DrainSteps(Session& s) {
-  while (s.StepsReady() > 0) ASSERT_TRUE(s.Step().ok());
-}
-
 // Steps taken over the second half of `audio` (after the beat tracker has settled on the first half).
 double StepsInSecondHalf(Session& s, const std::vector<float>& audio) {
   const size_t half = audio.size() / 2;
@@ -53,22 +52,6 @@ double StepsInSecondHalf(Session& s, const std::vector<float>& audio) {
   EXPECT_TRUE(s.PushAudio(absl::MakeConstSpan(audio.data() + half, audio.size() - half)).ok());
   DrainSteps(s);
   return static_cast<double>(s.steps_done() - at_half);
-}
-
-// Pushes `audio` in the given chunk sizes (cycled), stepping whenever possible, then ends the stream.
-std::vector<PoseFrame> RunStream(Session& s, const std::vector<float>& audio, const std::vector<size_t>& chunks) {
-  size_t pos = 0, i = 0;
-  while (pos < audio.size()) {
-    const size_t n = std::min(chunks[i++ % chunks.size()], audio.size() - pos);
-    EXPECT_TRUE(s.PushAudio(absl::MakeConstSpan(audio.data() + pos, n)).ok());
-    pos += n;
-    DrainSteps(s);
-  }
-  s.EndOfAudio();
-  DrainSteps(s);
-  std::vector<PoseFrame> out;
-  s.PopFrames(&out);
-  return out;
 }
 
 // Frames (of the first min(size) of each) whose upper (stream 0) or lower (1) codes differ.
