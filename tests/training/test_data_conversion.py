@@ -21,7 +21,7 @@ def _forward(p):
   return f / np.linalg.norm(f, axis=-1, keepdims=True)
 
 
-def _check_motion(m: sources.Motion):
+def _check_motion(m: sources.Motion, foot: str = "left"):
   p = m.positions.astype(np.float64)
   assert m.positions.dtype == np.float32 and p.shape[1:] == (24, 3)
   assert m.fps == 30
@@ -33,7 +33,7 @@ def _check_motion(m: sources.Motion):
   side = ((p[:, J["left_shoulder"]] - p[:, J["right_shoulder"]]) * left_axis).sum(-1)
   assert (side > 0).mean() > 0.95
   # Feet point forward (toe ahead of ankle) and knees bend forward, most of the time.
-  toe = ((p[:, J["left_foot"]] - p[:, J["left_ankle"]]) * fwd).sum(-1)
+  toe = ((p[:, J[f"{foot}_foot"]] - p[:, J[f"{foot}_ankle"]]) * fwd).sum(-1)
   assert (toe > 0).mean() > 0.9
   # Feet on the floor: the lowest foot joint sits near y = 0, the head above 1.3 m when upright.
   low = p[:, sk.FOOT_JOINTS, 1].min(1)
@@ -202,3 +202,30 @@ def test_mirror_swaps_sides_turns_the_other_way_and_keeps_the_skeleton():
   assert np.abs(low[1:, rep.ROOT_YAW_RATE]).min() > 0.01 and np.abs(low[1:, rep.ROOT_VX]).max() > 0.002
   # Twice is the identity on canonical-skeleton motion.
   assert np.allclose(sk.mirror_positions(m, skel), pos, atol=1e-9)
+
+
+@needs_data
+def test_tang_lady_reading_is_the_mirror_of_the_captured_one():
+  # docs/data.md "Left vs right": the lady's reading (3-11 left, the capture mirrored) passes every check the
+  # captured one does (sides, toes ahead, floor), puts the hold's extended arm on the right, and is the
+  # captured dance reflected left-right.
+  cap = sources.convert_tang(DATA / "tang2018" / "DANCE_W_3", SKEL)
+  lady = sources.convert_tang(DATA / "tang2018" / "DANCE_W_3", SKEL, sides="lady")
+  p = _check_motion(lady, foot="right")  # the captured reading's left foot (98 % toe ahead; its right: 89 %)
+  assert lady.notes["tang_sides"] == "lady" and cap.notes["tang_sides"] == "captured"
+  fwd = _forward(p)
+  left_axis = np.cross([0.0, 1.0, 0.0], fwd)
+  def out(wrist, shoulder):
+    return np.median(np.abs(((p[:, J[wrist]] - p[:, J[shoulder]]) * left_axis).sum(-1)))
+  assert out("right_wrist", "right_shoulder") > out("left_wrist", "left_shoulder") + 0.1
+  mirrored = sk.mirror_positions(cap.positions)
+  assert np.median(np.abs(mirrored - lady.positions)) < 0.01
+  with pytest.raises(ValueError):
+    sources.convert_tang(DATA / "tang2018" / "DANCE_W_3", SKEL, sides="man")
+
+
+def test_prepare_rewrites_a_cache_of_the_other_reading(tmp_path):
+  path = tmp_path / "tang_x.npz"
+  m = sources.Motion(np.zeros((4, 24, 3), np.float32), 30.0, "waltz", "tang2018", notes={"tang_sides": "captured"})
+  prepare._save(path, m)
+  assert prepare._fresh(path) and prepare._fresh(path, "captured") and not prepare._fresh(path, "lady")

@@ -1,7 +1,7 @@
 """Converts every motion source to the canonical skeleton and writes training/cache/motion/<id>.npz.
 
 Run from the repository root:
-  /usr/bin/python3 -m training.data.prepare [--data ../shared/data] [--aistpp DIR] [--force]
+  /usr/bin/python3 -m training.data.prepare [--data ../shared/data] [--aistpp DIR] [--force] [--tang-sides lady]
 
 Idempotent: a cache file is rewritten only when it is missing, was written by another converter version,
 or --force is given. Also writes training/split.json when it is missing, older than make_split's version, or
@@ -39,12 +39,16 @@ def _save(path: pathlib.Path, m: sources.Motion) -> None:
   tmp.replace(path)
 
 
-def _fresh(path: pathlib.Path) -> bool:
+def _fresh(path: pathlib.Path, tang_sides: str | None = None) -> bool:
+  """Whether the cache file is this converter's (and, with tang_sides, of that reading of the Tang sides;
+  files written before the option are "captured")."""
   if not path.exists():
     return False
   try:
     with np.load(path) as z:
-      return int(z["converter_version"]) == CONVERTER_VERSION
+      if int(z["converter_version"]) != CONVERTER_VERSION:
+        return False
+      return tang_sides is None or json.loads(str(z["notes"])).get("tang_sides", "captured") == tang_sides
   except Exception:  # unreadable or truncated: rebuild
     return False
 
@@ -71,14 +75,14 @@ def _split_tango(m: sources.Motion) -> tuple[sources.Motion, sources.Motion]:
   return a, b
 
 
-def jobs(data: pathlib.Path, skel: sk.Skeleton):
+def jobs(data: pathlib.Path, skel: sk.Skeleton, tang_sides: str = sources.TANG_SIDES_DEFAULT):
   """Yields (ids, thunk) where thunk() returns the Motions for those ids."""
   for folder in sorted((data / "tang2018").glob("DANCE_*")):
     if folder.name.startswith("DANCE_T_"):
       yield ([f"tang_{folder.name}_a", f"tang_{folder.name}_b"],
-             lambda f=folder: _split_tango(sources.convert_tang(f, skel)))
+             lambda f=folder: _split_tango(sources.convert_tang(f, skel, tang_sides)))
     else:
-      yield [f"tang_{folder.name}"], lambda f=folder: [sources.convert_tang(f, skel)]
+      yield [f"tang_{folder.name}"], lambda f=folder: [sources.convert_tang(f, skel, tang_sides)]
   for path in sorted((data / "mocap" / "cmu_salsa").glob("*.bvh")):
     yield ([f"cmu_{path.stem.replace('_scaled', '')}"],
            lambda p=path: [sources.convert_bvh(p, sources.CMU_MAP, 1.0, "salsa", "cmu_salsa", skel)])
@@ -115,14 +119,18 @@ def main(argv=None) -> int:
   ap.add_argument("--cache", type=pathlib.Path, default=CACHE)
   ap.add_argument("--aistpp", type=pathlib.Path, default=None, help="AIST++ root (motions/, wavs/)")
   ap.add_argument("--force", action="store_true")
+  ap.add_argument("--tang-sides", choices=sources.TANG_SIDES, default=sources.TANG_SIDES_DEFAULT,
+                  help="which reading of the Tang dancer's sides (docs/data.md \"Left vs right\"); a cache of "
+                       "the other reading is rewritten")
   args = ap.parse_args(argv)
   args.cache.mkdir(parents=True, exist_ok=True)
   skel = sk.load_skeleton(args.data / "skeleton" / "smpl24_skeleton.json")
   all_ids = []
-  for ids, thunk in jobs(args.data, skel):
+  for ids, thunk in jobs(args.data, skel, args.tang_sides):
     all_ids += ids
     paths = [args.cache / f"{i}.npz" for i in ids]
-    if not args.force and all(_fresh(p) for p in paths):
+    sides = args.tang_sides if ids[0].startswith("tang_") else None
+    if not args.force and all(_fresh(p, sides) for p in paths):
       continue
     for i, p, m in zip(ids, paths, thunk()):
       _save(p, m)

@@ -63,11 +63,34 @@ def _trunk_frames(l_hip, r_hip, spine_low, l_sh, r_sh, spine_high):
   return frames
 
 
-def convert_tang(folder: pathlib.Path, skel: sk.Skeleton) -> Motion:
+# The two readings of the Tang dancer's sides (docs/data.md "Left vs right"). "captured": points 12-20 are the
+# left side and the coordinates are taken as they are (the extended arm of the hold is then the left: a
+# man's hold with a lady's head and top line). "lady": points 3-11 are the left side and the capture is
+# mirrored (x negated), which keeps the toes ahead of the heels: the lady's part, her right arm extended,
+# her head turned and tilted to her left. The cues decide for "lady"; the cache and the shipped model still
+# use "captured" until the model is retrained on it (the retrain command is in docs/data.md).
+TANG_SIDES = ("captured", "lady")
+TANG_SIDES_DEFAULT = "captured"
+
+
+def _tang_point_map(sides: str) -> dict[str, int]:
+  if sides == "captured":
+    return TANG
+  swap = {"l_": "r_", "r_": "l_"}
+  return {(swap[k[:2]] + k[2:] if k[:2] in swap else k): i for k, i in TANG.items()}
+
+
+def convert_tang(folder: pathlib.Path, skel: sk.Skeleton, sides: str = TANG_SIDES_DEFAULT) -> Motion:
+  """One Tang take on the canonical skeleton; `sides`: one of TANG_SIDES (above)."""
+  if sides not in TANG_SIDES:
+    raise ValueError(f"convert_tang: sides must be one of {TANG_SIDES}, got {sides!r}")
   z = np.load(folder / "motion.npz")
   cfg = json.loads((folder / "config.json").read_text())
   s = z["skeletons"].astype(np.float64) * 0.01   # cm -> m, root-relative
   c = z["center"].astype(np.float64) * 0.01      # global root position
+  if sides == "lady":
+    s[..., 0] = -s[..., 0]
+    c[..., 0] = -c[..., 0]
   g = s + c[:, None]
   g, n_spikes = sk.remove_spikes(g, threshold=0.05)
   # config.json says the dance covers song frames start..end at 25 fps, but most takes hold 0.1-2 % fewer
@@ -77,7 +100,7 @@ def convert_tang(folder: pathlib.Path, skel: sk.Skeleton) -> Motion:
   span = cfg["end_position"] - cfg["start_position"]
   fps_in = TANG_FPS * s.shape[0] / span if span > 0 else TANG_FPS
   g = sk.resample(g, fps_in, sk.FPS)
-  p = {k: g[:, i] for k, i in TANG.items()}
+  p = {k: g[:, i] for k, i in _tang_point_map(sides).items()}
   root = sk.resample(c, fps_in, sk.FPS)
   head = 0.5 * (p["head_a"] + p["head_b"])
   sh_mid = 0.5 * (p["l_shoulder"] + p["r_shoulder"])
@@ -104,7 +127,7 @@ def convert_tang(folder: pathlib.Path, skel: sk.Skeleton) -> Motion:
                 audio_path=str(folder / "audio.ogg"),
                 audio_offset_s=cfg["start_position"] / TANG_FPS,
                 notes={"spikes_removed": n_spikes, "source_frames": int(s.shape[0]), "source_fps": fps_in,
-                       "config": cfg})
+                       "config": cfg, "tang_sides": sides})
 
 
 # BVH joint names -> SMPL joints. "_end" are end sites.

@@ -16,5 +16,7 @@ measurement tools).
     foot_plot        the foot lock, seen: one foot's speed, height and path, lock on and off
     librosa_compare  the engine's features against ground truth and librosa (scripts/reports/audio_report.py)
     pre_reference    batch PRE, the same numbers as the engine's incremental PRE
+    engine_gap       the free-running screen against the engine, one difference at a time (start, time base, locks)
+    tang_sides       which side of the Tang dancer is which: head, top line, hold and heel cues per take
     ablations.sh     the architecture ablations of the research log, each a fine-tune through training.train
 """
