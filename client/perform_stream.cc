@@ -38,6 +38,11 @@ bool PerformStream::PrepareNextLocked(absl::Time now) {
     header_sent_ = true;
     return true;
   }
+  if (next_control_ < options_.controls.size() &&
+      sent_frames_ >= static_cast<int64_t>(options_.controls[next_control_].at_s * source_->sample_rate())) {
+    *out_.mutable_control() = options_.controls[next_control_++].control;
+    return true;
+  }
   const int64_t available = source_->Available(now);
   const int64_t total = source_->Total();
   const int64_t ready = available - sent_frames_;
@@ -149,6 +154,9 @@ void PerformStream::HandleUpdate(const dance::v1::DanceUpdate& u, absl::Time arr
       if (options_.keep_frames) frames_.push_back(f);
       break;
     }
+    case dance::v1::DanceUpdate::kEvent:
+      events_.push_back(u.event());
+      break;
     case dance::v1::DanceUpdate::kEnd:
       end_ = u.end();
       got_end_ = true;

@@ -29,6 +29,7 @@
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
 #include "client/audio_source.h"
+#include "client/controls_request.h"
 #include "dance/v1/dance.grpc.pb.h"
 
 namespace dance::client {
@@ -38,6 +39,8 @@ struct PerformOptions {
   int chunk_ms = 40;                // audio per message
   bool keep_frames = true;          // keep every frame (for saving); load tests only count
   std::string auth_token;           // sent as "authorization: Bearer ..."
+  // Controls sent mid-stream, each once the audio sent reaches its time (ascending at_s).
+  std::vector<TimedControl> controls;
 };
 
 inline constexpr double kSlowFrameMs = 100.0;
@@ -76,6 +79,7 @@ class PerformStream : public grpc::ClientBidiReactor<dance::v1::PerformRequest, 
   const std::vector<dance::v1::PoseFrame>& frames() const { return frames_; }
   const FrameStats& stats() const { return stats_; }
   const dance::v1::StreamEnd& end() const { return end_; }
+  const std::vector<dance::v1::Event>& events() const { return events_; }
   bool got_info() const { return got_info_; }
   bool got_end() const { return got_end_; }
   // Audio sample frames (at the source's rate) handed to gRPC so far (thread-safe).
@@ -105,6 +109,7 @@ class PerformStream : public grpc::ClientBidiReactor<dance::v1::PerformRequest, 
   bool stop_writing_ ABSL_GUARDED_BY(mu_) = false;
   bool hold_released_ ABSL_GUARDED_BY(mu_) = false;
   int64_t sent_frames_ ABSL_GUARDED_BY(mu_) = 0;
+  size_t next_control_ ABSL_GUARDED_BY(mu_) = 0;
   dance::v1::PerformRequest out_ ABSL_GUARDED_BY(mu_);
   std::vector<std::pair<int64_t, absl::Time>> chunk_sent_ ABSL_GUARDED_BY(mu_);  // (end sample, send time)
   bool done_ ABSL_GUARDED_BY(mu_) = false;
@@ -117,6 +122,7 @@ class PerformStream : public grpc::ClientBidiReactor<dance::v1::PerformRequest, 
   dance::v1::SessionInfo info_;
   std::vector<dance::v1::PoseFrame> frames_;
   dance::v1::StreamEnd end_;
+  std::vector<dance::v1::Event> events_;
   bool got_info_ = false;
   bool got_end_ = false;
   FrameStats stats_;

@@ -11,7 +11,8 @@
 //   - StyleMix, ResolveStyle (runtime/style_mix.h): named style weights.
 //   - Controls, MotionTrack, TrajectoryPoint (runtime/controls.h): seed motion, given halves, keyframes,
 //     inpainting, trajectory; ReadMotionFile, ReadTrajectoryFile, ReadMaskFile (runtime/motion_io.h) read
-//     their files.
+//     their files; ControlSpec, BuildControls (runtime/control_spec.h): controls as a request states them
+//     (files' text or poses, mask spans, a path) into Controls.
 //   - PoseFrame (runtime/pose_frame.h): one emitted frame (positions, rotations, codes).
 //   - WriteDanceJson, WriteBvh (runtime/dance_writer.h): whole-dance files.
 //   - audio::DecodeAudioFile (audio/decoder.h): audio files to PCM.
@@ -32,6 +33,7 @@
 
 #include "engine/audio/decoder.h"
 #include "engine/nn/sampling.h"
+#include "engine/runtime/control_spec.h"
 #include "engine/runtime/controls.h"
 #include "engine/runtime/dance_writer.h"
 #include "engine/runtime/model.h"

@@ -279,6 +279,18 @@ absl::StatusOr<MotionFile> ReadMotionFile(const std::string& path) {
 
 absl::StatusOr<MotionFile> ParseMotionJson(const std::string& text) { return MotionFromJson(text, "motion"); }
 
+absl::StatusOr<std::string> ReadTextFile(const std::string& path) { return ReadText(path); }
+
+absl::StatusOr<MotionFile> ParseMotionText(const std::string& text, const std::string& name) {
+  const size_t first = text.find_first_not_of(" \t\r\n");
+  if (first != std::string::npos && text.compare(first, 9, "HIERARCHY") == 0) {
+    absl::StatusOr<MotionFile> m = ParseBvh(text);
+    if (!m.ok()) return absl::InvalidArgumentError(absl::StrCat("'", name, "': ", m.status().message()));
+    return m;
+  }
+  return MotionFromJson(text, name);
+}
+
 absl::StatusOr<std::vector<TrajectoryPoint>> ReadTrajectoryFile(const std::string& path) {
   absl::StatusOr<std::string> text = ReadText(path);
   if (!text.ok()) return text.status();
@@ -323,6 +335,12 @@ absl::StatusOr<std::vector<JointMask>> ReadMaskFile(const std::string& path, con
 
 absl::StatusOr<std::vector<JointMask>> ParseMaskJson(const std::string& text, const MotionFile& dance,
                                                      const std::string& path) {
+  absl::StatusOr<std::vector<MaskSpan>> spans = ParseMaskSpansJson(text, path);
+  if (!spans.ok()) return spans.status();
+  return MaskFromSpans(*spans, dance, path);
+}
+
+absl::StatusOr<std::vector<MaskSpan>> ParseMaskSpansJson(const std::string& text, const std::string& path) {
   absl::StatusOr<nlohmann::json> doc = ParseJson(text, path);
   if (!doc.ok()) return doc.status();
   const nlohmann::json& d = *doc;
@@ -330,9 +348,7 @@ absl::StatusOr<std::vector<JointMask>> ParseMaskJson(const std::string& text, co
       !d["known"].is_array()) {
     return absl::InvalidArgumentError(absl::StrCat("'", path, "': not a dance-mask/v1 file with \"known\""));
   }
-  std::vector<JointMask> mask(dance.positions.size(), 0);
-  // Times are on the dance's own timeline (its audio_offset_s, not rounded to the frame grid).
-  const double begin_s = dance.offset_s, end_s = dance.offset_s + dance.positions.size() / kFps;
+  std::vector<MaskSpan> spans;
   for (size_t i = 0; i < d["known"].size(); ++i) {
     const nlohmann::json& k = d["known"][i];
     if (!k.is_object() || !k.contains("start_s") || !k["start_s"].is_number() || !k.contains("end_s") ||
@@ -340,16 +356,31 @@ absl::StatusOr<std::vector<JointMask>> ParseMaskJson(const std::string& text, co
       return absl::InvalidArgumentError(absl::StrCat("'", path, "': known[", i,
                                                      "] needs start_s, end_s and a joints list"));
     }
-    const double a = k["start_s"].get<double>(), b = k["end_s"].get<double>();
+    MaskSpan& span = spans.emplace_back();
+    span.start_s = k["start_s"].get<double>();
+    span.end_s = k["end_s"].get<double>();
+    for (const nlohmann::json& name : k["joints"]) {
+      if (!name.is_string()) return absl::InvalidArgumentError(absl::StrCat("'", path, "': a joint is not a name"));
+      span.joints.push_back(name.get<std::string>());
+    }
+  }
+  return spans;
+}
+
+absl::StatusOr<std::vector<JointMask>> MaskFromSpans(const std::vector<MaskSpan>& spans, const MotionFile& dance,
+                                                     const std::string& path) {
+  std::vector<JointMask> mask(dance.positions.size(), 0);
+  // Times are on the dance's own timeline (its audio_offset_s, not rounded to the frame grid).
+  const double begin_s = dance.offset_s, end_s = dance.offset_s + dance.positions.size() / kFps;
+  for (size_t i = 0; i < spans.size(); ++i) {
+    const double a = spans[i].start_s, b = spans[i].end_s;
     if (!(a < b) || a < begin_s - 1e-6 || b > end_s + 1e-6) {
       return absl::InvalidArgumentError(absl::StrCat("'", path, "': known[", i, "] [", a, ", ", b,
                                                      ") s is empty or outside the dance's [", begin_s, ", ", end_s,
                                                      ") s"));
     }
     JointMask bits = 0;
-    for (const nlohmann::json& name : k["joints"]) {
-      if (!name.is_string()) return absl::InvalidArgumentError(absl::StrCat("'", path, "': a joint is not a name"));
-      const std::string n = name.get<std::string>();
+    for (const std::string& n : spans[i].joints) {
       if (n == "all") {
         bits = kAllJoints;
       } else if (n == "upper") {

@@ -30,6 +30,8 @@ struct MotionFile {
 };
 
 absl::StatusOr<MotionFile> ReadMotionFile(const std::string& path);
+// The text of a file; NotFound if it cannot be read.
+absl::StatusOr<std::string> ReadTextFile(const std::string& path);
 absl::StatusOr<std::vector<TrajectoryPoint>> ReadTrajectoryFile(const std::string& path);
 // The per-frame known joints of `dance` from a dance-mask/v1 file (times on the audio timeline).
 absl::StatusOr<std::vector<JointMask>> ReadMaskFile(const std::string& path, const MotionFile& dance);
@@ -40,6 +42,22 @@ absl::StatusOr<std::vector<TrajectoryPoint>> ParseTrajectoryJson(const std::stri
                                                                  const std::string& path = "trajectory");
 absl::StatusOr<std::vector<JointMask>> ParseMaskJson(const std::string& text, const MotionFile& dance,
                                                      const std::string& path = "mask");
+// A motion file's text of either kind: BVH if it starts with "HIERARCHY", else dance-motion/v1 JSON;
+// `name` names it in errors.
+absl::StatusOr<MotionFile> ParseMotionText(const std::string& text, const std::string& name);
+
+// One span of a dance-mask/v1 "known" list: [start_s, end_s) on the audio timeline, joints "all",
+// "upper", "lower" or SMPL names.
+struct MaskSpan {
+  double start_s = 0.0, end_s = 0.0;
+  std::vector<std::string> joints;
+};
+// The "known" list of a dance-mask/v1 text (not yet checked against a dance).
+absl::StatusOr<std::vector<MaskSpan>> ParseMaskSpansJson(const std::string& text, const std::string& path = "mask");
+// The per-frame known joints of `dance` from mask spans (the "known" list of a dance-mask/v1 file).
+absl::StatusOr<std::vector<JointMask>> MaskFromSpans(const std::vector<MaskSpan>& spans, const MotionFile& dance,
+                                                     const std::string& path = "mask");
+
 // Parses a BVH text whose joints carry the SMPL joint names (as dance-generate's BVH export writes them).
 absl::StatusOr<MotionFile> ParseBvh(const std::string& text);
 

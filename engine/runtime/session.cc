@@ -149,6 +149,19 @@ int64_t Session::StateBytes() const {
          time_.Bytes() + policy_.Bytes();
 }
 
+void Session::NextStepRealFrames(double* first, double* last) const {
+  double rate = 1.0;
+  time_.EmittedRealSpan(lanes_.step(), first, last, &rate);
+}
+
+int Session::ControlLookaheadFrames() const {
+  int frames = 0;
+  for (const VqEncoder* e : {model_->upper_encoder(), model_->lower_encoder()}) {
+    if (e != nullptr) frames = std::max(frames, e->lookahead_frames());
+  }
+  return frames;
+}
+
 absl::Status StepBatch(absl::Span<Session* const> sessions) {
   thread_local Workspace workspace;
   thread_local std::vector<LaneInput> lanes;

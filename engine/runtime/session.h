@@ -117,6 +117,12 @@ class Session {
   // the dance's alignment carries on. InvalidArgument for bad controls (nothing changes then). The
   // controls travel in snapshots.
   absl::Status SetControls(const Controls& controls) { return control_.SetControls(controls); }
+  // The real (audio-timeline, 30 fps) frames [*first, *last] the next step will emit, as the clock
+  // estimates them now: live given motion must reach *last plus ControlLookaheadFrames() before that step
+  // runs for its codes to be the ones the whole motion gives.
+  void NextStepRealFrames(double* first, double* last) const;
+  // How many frames past a step's last frame the VQ encoders read given motion (0 without encoders).
+  int ControlLookaheadFrames() const;
 
   absl::StatusOr<SessionSnapshot> Snapshot() const;
   absl::Status Restore(const SessionSnapshot& snapshot);

@@ -1,5 +1,6 @@
 #include "engine/vq/pose_encoder.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -117,6 +118,9 @@ absl::StatusOr<VqEncoder> VqEncoder::Load(const WeightsFile& file, const std::st
         conv.taps.push_back(std::move(tap));
       }
       DANCE_ASSIGN_OR_RETURN(conv.bias, LoadVector(file, jop["b"].get<std::string>(), out));
+      // This conv reads dilation (k - 1) - pad of its input steps past its output's first, each
+      // downsample_ frames so far.
+      enc.lookahead_frames_ += std::max(0, conv.dilation * (k - 1) - conv.pad) * enc.downsample_;
       enc.downsample_ *= conv.stride;
       op.kind = OpKind::kConv;
       op.conv = static_cast<int>(enc.convs_.size());

@@ -57,6 +57,10 @@ class VqEncoder {
   std::vector<int> Encode(const Eigen::MatrixXf& features) const;
   int in_dim() const { return in_dim_; }
   int downsample() const { return downsample_; }
+  // An upper bound on how many frames after a code's first frame its code depends on (the convolutions'
+  // forward reach, the code's own frames, one frame of velocity): a live given motion settles into codes
+  // this many frames behind the newest pose.
+  int lookahead_frames() const { return lookahead_frames_ + downsample_ + 1; }
 
  private:
   enum class OpKind { kConv, kRelu, kResBegin, kResEnd };
@@ -77,6 +81,7 @@ class VqEncoder {
   Eigen::VectorXf pose_mean_, pose_std_;  // (in_dim)
   int in_dim_ = 0;
   int downsample_ = 1;
+  int lookahead_frames_ = 0;  // the convolutions' forward reach, frames
 };
 
 }  // namespace dance::engine

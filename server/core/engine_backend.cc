@@ -1,8 +1,13 @@
 // LoadEngineBackend: the port (engine_port.h) implemented with the real engine, through its public header
 // (engine/engine.h). The only file of the server that includes an engine header.
+#include <algorithm>
+#include <cmath>
 #include <memory>
+#include <optional>
 #include <utility>
 #include <vector>
+
+#include "absl/strings/str_cat.h"
 
 #include "engine/engine.h"
 #include "server/core/engine_port.h"
@@ -21,9 +26,71 @@ engine::SamplingOptions ToEngine(const SamplingConfig& s) {
   return o;
 }
 
+engine::MotionSource ToEngine(const MotionSpec& m, const char* name) {
+  engine::MotionSource out;
+  out.name = name;
+  out.text = m.file;
+  out.start_s = m.start_s;
+  out.times_s = m.times_s;
+  out.positions.resize(m.positions.size() / (kNumJoints * 3));
+  for (size_t i = 0; i < out.positions.size(); ++i) {
+    for (int j = 0; j < kNumJoints; ++j) {
+      const float* p = &m.positions[(i * kNumJoints + j) * 3];
+      out.positions[i][j] = Eigen::Vector3f(p[0], p[1], p[2]);
+    }
+  }
+  return out;
+}
+
+engine::TrajectoryPoint ToEngine(const PathPointSpec& p) {
+  engine::TrajectoryPoint q;
+  q.t_s = p.t_s;
+  q.x = p.x;
+  q.z = p.z;
+  q.facing = p.facing;
+  return q;
+}
+
+// The spec as the engine's Controls; a seed starts no earlier than `seed_not_before_frame`. Errors are
+// prefixed "controls: ".
+absl::StatusOr<engine::Controls> BuildEngineControls(const ControlSpec& c, int64_t seed_not_before_frame) {
+  engine::ControlSpec spec;
+  spec.seed = ToEngine(c.seed, "controls.seed");
+  spec.given_upper = ToEngine(c.given_upper, "controls.given_upper");
+  spec.given_lower = ToEngine(c.given_lower, "controls.given_lower");
+  spec.keyframes = ToEngine(c.keyframes, "controls.keyframes");
+  spec.inpaint = ToEngine(c.inpaint, "controls.inpaint");
+  spec.mask_name = "controls.inpaint_known";
+  for (const MaskSpanSpec& m : c.inpaint_known) spec.inpaint_known.push_back({m.start_s, m.end_s, m.joints});
+  for (const PathPointSpec& p : c.trajectory) spec.trajectory.push_back(ToEngine(p));
+  engine::BuildOptions options;
+  options.seed_not_before_frame = seed_not_before_frame;
+  return engine::BuildControls(spec, options);
+}
+
+// The frames [a, b) of `t` (a copy; empty if they do not overlap).
+engine::MotionTrack CropTrack(const engine::MotionTrack& t, int64_t a, int64_t b) {
+  engine::MotionTrack out;
+  const int64_t from = std::max(a, t.first_frame), to = std::min(b, t.end_frame());
+  if (from >= to) return out;
+  out.first_frame = from;
+  out.positions.assign(t.positions.begin() + (from - t.first_frame), t.positions.begin() + (to - t.first_frame));
+  out.known.assign(t.known.begin() + (from - t.first_frame), t.known.begin() + (to - t.first_frame));
+  return out;
+}
+
+// Live poses are kept this many frames behind the next step (the encoders' context), and at most this
+// far ahead of it.
+constexpr int64_t kLiveKeepBehind = 90;
+constexpr int64_t kLiveMaxAhead = 30 * 30;
+// While live poses come in, the rest of the motion controls is re-planned within this window around the
+// next step (the whole of a long given motion is not re-encoded every step).
+constexpr int64_t kBaseWindowBehind = 90, kBaseWindowAhead = 600;
+
 class EngineSessionStream final : public EngineStream {
  public:
-  explicit EngineSessionStream(std::unique_ptr<engine::Session> session) : session_(std::move(session)) {}
+  explicit EngineSessionStream(std::unique_ptr<engine::Session> session, engine::Controls controls)
+      : session_(std::move(session)), base_(std::move(controls)) {}
 
   absl::Status PushAudio(absl::Span<const float> interleaved) override { return session_->PushAudio(interleaved); }
   absl::Status PushAudioInt16(absl::Span<const int16_t> interleaved) override {
@@ -50,6 +117,10 @@ class EngineSessionStream final : public EngineStream {
       d.lower_code = f.lower_code;
       out->push_back(d);
     }
+    if (!scratch_.empty()) {
+      last_root_ = scratch_.back().positions[0];
+      have_root_ = true;
+    }
   }
   absl::Status SetStyle(const StyleMix& style) override { return session_->SetStyle(style); }
   absl::Status SetSampling(const SamplingConfig& sampling) override {
@@ -68,11 +139,115 @@ class EngineSessionStream final : public EngineStream {
     return session_->SetSampling(o);
   }
 
+  absl::Status SetControls(const ControlSpec& controls) override {
+    absl::StatusOr<engine::Controls> c = BuildEngineControls(controls, NextFrame());
+    if (!c.ok()) return c.status();
+    base_ = *std::move(c);
+    steer_path_.reset();
+    dirty_ = true;
+    return absl::OkStatus();
+  }
+
+  absl::Status Steer(const SteerTarget& target) override {
+    const double now_s = static_cast<double>(NextFrame()) / 30.0;
+    const Eigen::Vector3f root = have_root_ ? last_root_ : Eigen::Vector3f::Zero();
+    std::vector<engine::TrajectoryPoint> path;
+    if (target.kind == SteerTarget::Kind::kPoint) {
+      if (!(target.t_s > now_s + 1.0 / 30.0)) {
+        return absl::InvalidArgumentError(absl::StrCat("steer.point.t_ms ", target.t_s * 1000.0,
+                                                       " is not after the next frame (", now_s * 1000.0, " ms)"));
+      }
+      path.push_back({now_s, root.x(), root.z(), std::nullopt});
+      path.push_back({target.t_s, target.x, target.z, target.facing});
+    } else if (target.x != 0.0f || target.z != 0.0f) {
+      const float h = static_cast<float>(target.hold_s);
+      path.push_back({now_s, root.x(), root.z(), target.facing});
+      path.push_back({now_s + target.hold_s, root.x() + h * target.x, root.z() + h * target.z, target.facing});
+    }  // else: a zero velocity releases the steering (no path)
+    steer_path_ = std::move(path);
+    dirty_ = true;
+    return absl::OkStatus();
+  }
+
+  absl::Status PushPoses(absl::Span<const LivePose> poses) override {
+    const int64_t next = NextFrame();
+    absl::Status status;
+    for (const LivePose& p : poses) {
+      if (!live_.empty() && p.frame < live_.end_frame() - 1) {
+        status.Update(absl::InvalidArgumentError(absl::StrCat("poses: time ", p.frame * 1000.0 / 30.0,
+                                                              " ms is before the previous pose's")));
+        continue;
+      }
+      if (p.frame > next + kLiveMaxAhead) {
+        status.Update(absl::InvalidArgumentError(absl::StrCat(
+            "poses: time ", p.frame * 1000.0 / 30.0, " ms is more than 30 s ahead of the dance (",
+            next * 1000.0 / 30.0, " ms)")));
+        continue;
+      }
+      if (live_.empty()) live_.first_frame = p.frame;
+      // Frames between two poses are not given (the dance fills them); a second pose of a frame replaces it.
+      while (live_.end_frame() <= p.frame) {
+        live_.positions.emplace_back();
+        live_.known.push_back(0);
+      }
+      engine::JointPositions& q = live_.positions.back();
+      for (int j = 0; j < kNumJoints; ++j) q[j] = Eigen::Vector3f(p.positions[3 * j], p.positions[3 * j + 1], p.positions[3 * j + 2]);
+      live_.known.back() = p.joints;
+      live_active_ = true;
+      dirty_ = true;
+    }
+    // Forget poses the encoders no longer need.
+    const int64_t keep_from = next - kLiveKeepBehind;
+    if (live_.first_frame < keep_from && !live_.empty()) {
+      const int64_t drop = std::min<int64_t>(keep_from - live_.first_frame, static_cast<int64_t>(live_.positions.size()));
+      live_.positions.erase(live_.positions.begin(), live_.positions.begin() + drop);
+      live_.known.erase(live_.known.begin(), live_.known.begin() + drop);
+      live_.first_frame += drop;
+    }
+    return status;
+  }
+
+  void EndPoses() override { live_active_ = false; }
+
+  bool WaitsForPoses() const override {
+    if (!live_active_) return false;
+    double first = 0.0, last = 0.0;
+    session_->NextStepRealFrames(&first, &last);
+    const int64_t needed = static_cast<int64_t>(std::ceil(last)) + session_->ControlLookaheadFrames();
+    return live_.end_frame() <= needed;
+  }
+
+  absl::Status CommitControls() override {
+    if (!dirty_) return absl::OkStatus();
+    dirty_ = false;
+    engine::Controls c = base_;
+    if (steer_path_.has_value()) c.trajectory = *steer_path_;
+    if (!live_.empty()) {
+      const int64_t next = NextFrame();
+      c.motion = engine::CombineTracks(CropTrack(c.motion, next - kBaseWindowBehind, next + kBaseWindowAhead), live_);
+    }
+    return session_->SetControls(c);
+  }
+
   engine::Session* session() { return session_.get(); }
 
  private:
+  // The first real frame the next step emits.
+  int64_t NextFrame() const {
+    double first = 0.0, last = 0.0;
+    session_->NextStepRealFrames(&first, &last);
+    return std::max<int64_t>(0, static_cast<int64_t>(std::ceil(first)));
+  }
+
   std::unique_ptr<engine::Session> session_;
   std::vector<engine::PoseFrame> scratch_;
+  engine::Controls base_;                                       // from the header or the last Control
+  std::optional<std::vector<engine::TrajectoryPoint>> steer_path_;  // set: replaces base_'s path
+  engine::MotionTrack live_;                                    // live poses, the last few seconds
+  bool live_active_ = false;                                    // poses are coming in
+  bool dirty_ = false;                                          // the session's controls are behind
+  Eigen::Vector3f last_root_ = Eigen::Vector3f::Zero();         // the pelvis of the last frame out
+  bool have_root_ = false;
 };
 
 class EngineBackendImpl final : public EngineBackend {
@@ -92,6 +267,11 @@ class EngineBackendImpl final : public EngineBackend {
     desc_.default_guidance = model_->default_guidance();
     desc_.default_music_guidance = model_->default_music_guidance();
     desc_.default_top_p = model_->default_top_p();
+    int lookahead = 0;
+    for (const engine::VqEncoder* e : {model_->upper_encoder(), model_->lower_encoder()}) {
+      if (e != nullptr) lookahead = std::max(lookahead, e->lookahead_frames());
+    }
+    desc_.pose_latency_ms = lookahead * 1000.0 / desc_.fps;
   }
 
   const ModelDescription& Describe() const override { return desc_; }
@@ -104,9 +284,15 @@ class EngineBackendImpl final : public EngineBackend {
     o.seed = config.seed;
     o.sampling = ToEngine(config.sampling);
     o.sampling.foot_lock = config.foot_lock;
+    if (!config.controls.empty()) {
+      absl::StatusOr<engine::Controls> c = BuildEngineControls(config.controls, 0);
+      if (!c.ok()) return c.status();
+      o.controls = *std::move(c);
+    }
     absl::StatusOr<std::unique_ptr<engine::Session>> s = engine::Session::Create(model_, o);
     if (!s.ok()) return s.status();
-    return std::make_unique<EngineSessionStream>(*std::move(s));
+    engine::Controls controls = o.controls;
+    return std::make_unique<EngineSessionStream>(*std::move(s), std::move(controls));
   }
 
   absl::Status StepBatch(absl::Span<EngineStream* const> streams) const override {
@@ -127,6 +313,9 @@ class EngineBackendImpl final : public EngineBackend {
 absl::StatusOr<std::unique_ptr<EngineBackend>> LoadEngineBackend(const std::string& model_path) {
   absl::StatusOr<std::shared_ptr<const engine::Model>> model = engine::LoadModel(model_path);
   if (!model.ok()) return model.status();
+  if (engine::UpperMask() != kUpperJointBits || engine::LowerMask() != kLowerJointBits) {
+    return absl::InternalError("server/core/engine_port.h's joint bits differ from the engine's body halves");
+  }
   return std::make_unique<EngineBackendImpl>(*std::move(model));
 }
 

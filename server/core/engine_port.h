@@ -48,6 +48,57 @@ struct SamplingConfig {
 
 using StyleMix = std::vector<std::pair<std::string, float>>;  // (style name, weight >= 0)
 
+// The controls as a client states them (dance.v1.MotionControls), times in seconds on the input timeline;
+// the engine reads and checks them (engine/runtime/control_spec.h).
+struct MotionSpec {
+  std::vector<float> positions;  // frames x kNumJoints x 3, metres; or
+  std::string file;              // a dance-motion/v1 JSON or BVH file's bytes
+  double start_s = 0.0;
+  std::vector<double> times_s;   // poses only: each pose's time (keyframes)
+  bool empty() const { return positions.empty() && file.empty(); }
+};
+struct MaskSpanSpec {
+  double start_s = 0.0, end_s = 0.0;
+  std::vector<std::string> joints;  // "all", "upper", "lower" or SMPL names
+};
+struct PathPointSpec {
+  double t_s = 0.0;
+  float x = 0.0f, z = 0.0f;
+  std::optional<float> facing;
+};
+struct ControlSpec {
+  MotionSpec seed, given_upper, given_lower, keyframes, inpaint;
+  std::vector<MaskSpanSpec> inpaint_known;
+  std::vector<PathPointSpec> trajectory;
+  bool empty() const {
+    return seed.empty() && given_upper.empty() && given_lower.empty() && keyframes.empty() && inpaint.empty() &&
+           inpaint_known.empty() && trajectory.empty();
+  }
+};
+
+// Live steering (dance.v1.SteerTarget): be at a point at a time, or travel at a velocity for a while.
+struct SteerTarget {
+  enum class Kind { kPoint, kVelocity };
+  Kind kind = Kind::kPoint;
+  double t_s = 0.0;          // point: when (input timeline)
+  float x = 0.0f, z = 0.0f;  // point: where (m); velocity: m/s
+  std::optional<float> facing;
+  double hold_s = 1.0;       // velocity: for how long
+};
+
+// Bit j = SMPL joint j.
+using JointBits = uint32_t;
+inline constexpr JointBits kUpperJointBits = 0xFFF248;  // spine1, spine2, spine3, neck, collars, head, arms
+inline constexpr JointBits kLowerJointBits = 0x000DB7;  // pelvis, hips, knees, ankles, feet
+inline constexpr JointBits kAllJointBits = 0xFFFFFF;
+
+// One live pose of a given body part (dance.v1.PoseInput).
+struct LivePose {
+  int64_t frame = 0;  // input timeline, 30 fps frame (round(time x 30))
+  std::array<float, kNumJoints * 3> positions{};
+  JointBits joints = 0;
+};
+
 struct StreamConfig {
   int sample_rate_hz = 24000;  // input rate, Hz
   int channels = 1;            // interleaved input channels
@@ -55,6 +106,7 @@ struct StreamConfig {
   uint64_t seed = 0;
   SamplingConfig sampling;
   bool foot_lock = true;       // false = legs and feet as decoded (StreamHeader.raw_feet)
+  ControlSpec controls;        // empty = none
 };
 
 // What the loaded model tells clients (SessionInfo / ModelInfo).
@@ -73,6 +125,7 @@ struct ModelDescription {
   float default_guidance = 1.0f;     // Sampling.guidance when 0 (1 = off)
   float default_music_guidance = 1.0f;  // Sampling.music_guidance when absent (1 = off)
   float default_top_p = 1.0f;        // Sampling.top_p when 0 (1 = no cut)
+  double pose_latency_ms = 0.0;      // how far live poses must reach past a frame before it is danced
 };
 
 struct FrameData {
@@ -97,6 +150,23 @@ class EngineStream {
   virtual void PopFrames(std::vector<FrameData>* out) = 0;
   virtual absl::Status SetStyle(const StyleMix& style) = 0;
   virtual absl::Status SetSampling(const SamplingConfig& sampling) = 0;
+
+  // ---- controls (engines without them answer UNIMPLEMENTED) ----
+  // Replaces the motion controls and the path from the next step on (empty = none); a seed that would
+  // start before the next frame starts at it. INVALID_ARGUMENT naming what is wrong (nothing changes).
+  virtual absl::Status SetControls(const ControlSpec& controls);
+  // Replaces the path with one toward `target` from where the dancer is now; a zero velocity clears it.
+  virtual absl::Status Steer(const SteerTarget& target);
+  // Live poses, frames increasing (a pose for a frame already taken replaces it); kept for the last
+  // seconds. INVALID_ARGUMENT for a pose out of order (the others are kept).
+  virtual absl::Status PushPoses(absl::Span<const LivePose> poses);
+  // No more live poses for now (the input stopped): stepping stops waiting for them.
+  virtual void EndPoses() {}
+  // Whether the next step must wait for live poses (they do not yet reach the frames it needs).
+  virtual bool WaitsForPoses() const { return false; }
+  // Applies what SetControls / Steer / PushPoses changed, before a step. An error leaves the controls in
+  // effect unchanged.
+  virtual absl::Status CommitControls() { return absl::OkStatus(); }
 };
 
 class EngineBackend {

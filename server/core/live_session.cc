@@ -60,23 +60,35 @@ absl::Status LiveSession::EnqueueAudio(int64_t sample_offset, std::string pcm, a
   return s;
 }
 
-absl::Status LiveSession::QueueControl(std::optional<StyleMix> style,
-                                               std::optional<SamplingConfig> sampling) {
+absl::Status LiveSession::QueueControl(ValidatedControl control) {
   absl::MutexLock lock(&inbox_mu_);
   if (closed_) return absl::FailedPreconditionError("session is over");
-  if (style) current_style_ = style;
+  if (control.style) current_style_ = control.style;
   InboxItem item;
   item.kind = InboxItem::Kind::kControl;
-  item.style = std::move(style);
-  item.sampling = sampling;
+  item.control = std::move(control);
   inbox_.push_back(std::move(item));
   return absl::OkStatus();
 }
 
-absl::Status LiveSession::EnqueueControl(std::optional<StyleMix> style, std::optional<SamplingConfig> sampling) {
-  absl::Status s = QueueControl(std::move(style), sampling);
+absl::Status LiveSession::EnqueueControl(ValidatedControl control) {
+  absl::Status s = QueueControl(std::move(control));
   if (s.ok() && settings_.wake) settings_.wake();
   return s;
+}
+
+absl::Status LiveSession::EnqueuePoses(std::vector<PoseRequest> poses, absl::Time arrival) {
+  {
+    absl::MutexLock lock(&inbox_mu_);
+    if (closed_) return absl::FailedPreconditionError("session is over");
+    InboxItem item;
+    item.kind = InboxItem::Kind::kPoses;
+    item.poses = std::move(poses);
+    item.arrival = arrival;
+    inbox_.push_back(std::move(item));
+  }
+  if (settings_.wake) settings_.wake();
+  return absl::OkStatus();
 }
 
 absl::Status LiveSession::QueueEnd(absl::Time arrival) {
@@ -197,6 +209,7 @@ absl::Status LiveSession::Drain(absl::Time now) {
     }
   }
   std::optional<TriggerMark> last_audio;  // the last audio chunk drained
+  absl::Status pose_error;                // the first bad pose drained (one warning per pass)
   for (InboxItem& item : items) {
     switch (item.kind) {
       case InboxItem::Kind::kAudio: {
@@ -211,9 +224,18 @@ absl::Status LiveSession::Drain(absl::Time now) {
         break;
       }
       case InboxItem::Kind::kControl: {
+        const ValidatedControl& c = item.control;
         absl::Status s;
-        if (item.style) s.Update(stream_->SetStyle(*item.style));
-        if (item.sampling) s.Update(stream_->SetSampling(*item.sampling));
+        if (c.style) s.Update(stream_->SetStyle(*c.style));
+        if (c.sampling) s.Update(stream_->SetSampling(*c.sampling));
+        if (c.controls) {
+          absl::Status v = ValidateControlSpec(*c.controls);
+          s.Update(v.ok() ? stream_->SetControls(*c.controls) : v);
+        }
+        if (c.steer) {
+          absl::Status v = ValidateSteer(*c.steer);
+          s.Update(v.ok() ? stream_->Steer(*c.steer) : v);
+        }
         if (s.ok()) {
           PushEvent(EventKind::kControlApplied, "control applied");
         } else {
@@ -221,12 +243,33 @@ absl::Status LiveSession::Drain(absl::Time now) {
         }
         break;
       }
+      case InboxItem::Kind::kPoses:
+        for (const PoseRequest& r : item.poses) {
+          absl::StatusOr<LivePose> p = ValidatePose(r);
+          if (p.ok()) {
+            pose_buf_.push_back(*p);
+          } else if (pose_error.ok()) {
+            pose_error = p.status();
+          }
+        }
+        last_pose_arrival_ = item.arrival;
+        break;
       case InboxItem::Kind::kEnd:
         stream_->EndOfAudio();
         end_drained_ = true;
         RecordTrigger(item.end_sample, item.arrival);
         break;
     }
+  }
+  if (!pose_buf_.empty()) {
+    // All the poses of this pass at once: the controls are re-planned once per step, not per pose.
+    pose_error.Update(stream_->PushPoses(pose_buf_));
+    pose_buf_.clear();
+  }
+  if (!pose_error.ok() && (!last_pose_warning_ || now - *last_pose_warning_ >= absl::Seconds(1))) {
+    // At most one a second: a client sending bad poses at 30 fps gets told, not flooded.
+    PushEvent(EventKind::kWarning, absl::StrCat("pose ignored: ", pose_error.message()));
+    last_pose_warning_ = now;
   }
   // A tempo-normalised model emits real frames as their audio arrives (not only after a step): send them,
   // timed from the last audio chunk drained (the one that released them).
@@ -340,6 +383,27 @@ bool LiveSession::OutputBacklogged(absl::Time now) {
     return false;
   }
   if (!backlogged_since_) backlogged_since_ = now;
+  return true;
+}
+
+bool LiveSession::ReadyToStep(absl::Time now) {
+  if (completed_ || stream_->StepsReady() <= 0 || OutputBacklogged(now)) return false;
+  if (stream_->WaitsForPoses()) {
+    // After the end of the audio no pose can be due: the rig's last poses were for the song's last frames.
+    if (end_drained_) {
+      stream_->EndPoses();
+    } else if (last_pose_arrival_.has_value() && now - *last_pose_arrival_ < settings_.pose_timeout) {
+      return false;
+    } else {
+      stream_->EndPoses();
+      PushEvent(EventKind::kWarning,
+                absl::StrCat("pose input stopped: no pose for ", absl::FormatDuration(settings_.pose_timeout),
+                             "; the given part ends and the dance goes on"));
+    }
+  }
+  if (absl::Status s = stream_->CommitControls(); !s.ok()) {
+    PushEvent(EventKind::kWarning, absl::StrCat("controls not applied: ", s.message()));
+  }
   return true;
 }
 

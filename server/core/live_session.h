@@ -54,6 +54,8 @@ struct SessionSettings {
   // RESOURCE_EXHAUSTED (a client that stopped reading).
   size_t output_soft_limit = 64;
   absl::Duration stall_timeout = absl::Seconds(10);
+  // How long the session waits for live poses (PoseInput) before it ends the given part and dances on.
+  absl::Duration pose_timeout = absl::Seconds(1);
   // Called (without locks held) after anything is queued, to wake the owning scheduler. May be empty.
   std::function<void()> wake;
 };
@@ -86,7 +88,9 @@ class LiveSession {
   // is not the next expected one or audio follows EndOfAudio; FAILED_PRECONDITION if the session is over.
   // *pause_reading is set when the inbox is over its bound (then wait for the resumer).
   absl::Status EnqueueAudio(int64_t sample_offset, std::string pcm, absl::Time arrival, bool* pause_reading);
-  absl::Status EnqueueControl(std::optional<StyleMix> style, std::optional<SamplingConfig> sampling);
+  absl::Status EnqueueControl(ValidatedControl control);
+  // Queues live poses, arrived at `arrival` (checked when drained: a bad one is refused with a warning).
+  absl::Status EnqueuePoses(std::vector<PoseRequest> poses, absl::Time arrival);
   absl::Status EnqueueEnd(absl::Time arrival);
   // Ends the session with `status` (not OK) at the scheduler's next pass. First failure wins. Returns
   // false if the session is already over (completed), true otherwise.
@@ -110,6 +114,10 @@ class LiveSession {
   // flow control: a server too busy to keep up must not blame the client.
   absl::Status CheckHealth(absl::Time now);
   int StepsReady() const { return stream_->StepsReady(); }
+  // Whether to put this session in the next batch: a step is ready, the performer is not backlogged, and
+  // live poses (if any come in) reach the frames the step needs, or stopped coming for pose_timeout (then
+  // the given part ends with a warning). Applies pending controls first (a warning if they fail).
+  bool ReadyToStep(absl::Time now);
   // True while the performer's backlog is above output_soft_limit (then do not step this session).
   bool OutputBacklogged(absl::Time now);
   EngineStream* engine_stream() { return stream_.get(); }
@@ -129,13 +137,13 @@ class LiveSession {
 
  private:
   struct InboxItem {
-    enum class Kind { kAudio, kControl, kEnd };
+    enum class Kind { kAudio, kControl, kPoses, kEnd };
     Kind kind = Kind::kAudio;
     std::string pcm;
     int64_t end_sample = 0;
     absl::Time arrival;
-    std::optional<StyleMix> style;
-    std::optional<SamplingConfig> sampling;
+    ValidatedControl control;
+    std::vector<PoseRequest> poses;
   };
   // Which chunk made the engine's step count reach `steps_total`.
   struct TriggerMark {
@@ -146,7 +154,7 @@ class LiveSession {
 
   absl::Status QueueAudio(int64_t sample_offset, std::string pcm, absl::Time arrival,
                                   bool* pause_reading);
-  absl::Status QueueControl(std::optional<StyleMix> style, std::optional<SamplingConfig> sampling);
+  absl::Status QueueControl(ValidatedControl control);
   absl::Status QueueEnd(absl::Time arrival);
   // Publishes the frames the engine has produced. `audio_trigger`: the frames were released by the audio
   // just drained (a tempo-normalised model emits a frame once its audio has arrived), so that chunk, not
@@ -194,6 +202,9 @@ class LiveSession {
   bool end_drained_ = false;
   absl::Status final_status_;
   std::optional<absl::Time> backlogged_since_;
+  std::optional<absl::Time> last_pose_arrival_;  // of the newest live pose drained
+  std::optional<absl::Time> last_pose_warning_;
+  std::vector<LivePose> pose_buf_;
   bool completed_ = false;
   std::vector<float> f32_buf_;
   std::vector<int16_t> s16_buf_;

@@ -84,7 +84,7 @@ bool Scheduler::Pass() {
     streams_.clear();
     for (; next < sessions_.size() && static_cast<int>(batch_.size()) < options_.max_batch; ++next) {
       LiveSession* s = sessions_[next].get();
-      if (s->completed() || s->StepsReady() <= 0 || s->OutputBacklogged(now)) continue;
+      if (!s->ReadyToStep(now)) continue;
       batch_.push_back(s);
       streams_.push_back(s->engine_stream());
     }

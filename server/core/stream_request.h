@@ -17,6 +17,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -27,6 +28,9 @@ namespace dance::server {
 enum class PcmFormat { kF32Le, kS16Le };
 
 inline int BytesPerSample(PcmFormat f) { return f == PcmFormat::kF32Le ? 4 : 2; }
+
+// The most poses one control may carry (10 minutes at 30 fps; a longer given motion goes in a file).
+inline constexpr size_t kMaxControlFrames = 30 * 600;
 
 struct StreamLimits {
   int min_sample_rate_hz = 8000;
@@ -57,12 +61,23 @@ struct StreamRequest {
   std::string client_name;
   bool omit_rotations = false;
   bool raw_feet = false;
+  ControlSpec controls;  // empty = none
 };
 
 // A mid-stream change (Control, or the browser's control message), not yet validated.
 struct ControlRequest {
   StyleMix style;                           // empty = keep the style
   std::optional<SamplingRequest> sampling;  // nullopt = keep the sampling options
+  std::optional<ControlSpec> controls;      // set = replace the motion controls and path (empty = none)
+  std::optional<SteerTarget> steer;         // set = replace the path with this target
+};
+
+// One live pose as a client sends it (PoseInput, or the browser's poses message), not yet validated.
+enum class BodyPart { kUnspecified, kUpper, kLower, kAll };
+struct PoseRequest {
+  double time_ms = 0.0;
+  std::vector<float> positions;  // kNumJoints x 3
+  BodyPart part = BodyPart::kUnspecified;
 };
 
 struct ValidatedStream {
@@ -75,15 +90,26 @@ struct ValidatedStream {
 struct ValidatedControl {
   std::optional<StyleMix> style;
   std::optional<SamplingConfig> sampling;
+  std::optional<ControlSpec> controls;
+  std::optional<SteerTarget> steer;
 };
 
 absl::StatusOr<ValidatedStream> ValidateStream(const StreamRequest& request, const ModelDescription& model,
                                                const StreamLimits& limits);
+// Style and sampling; the controls and steering pass through unchecked (the session checks them when it
+// applies them, and refuses bad ones with a warning rather than ending the stream).
 absl::StatusOr<ValidatedControl> ValidateControl(const ControlRequest& request, const ModelDescription& model);
 // Every name one of the model's styles (or "none"), every weight finite and >= 0, at most 64 entries.
 absl::StatusOr<StyleMix> ValidateStyle(const StyleMix& style, const ModelDescription& model);
 // The ranges above; maps the protocol's "0 = the model's default" onto the engine's negative values.
 absl::StatusOr<SamplingConfig> ValidateSampling(const SamplingRequest& sampling);
+// The shape of the controls (pose arrays of whole 24-joint frames, finite times and coordinates, sizes
+// within kMaxControlFrames); the engine checks the rest when it builds them (errors prefixed "controls.").
+absl::Status ValidateControlSpec(const ControlSpec& controls);
+// A steering target: finite, a velocity of at most 10 m/s held for (0, 60] s, a time within the stream.
+absl::Status ValidateSteer(const SteerTarget& steer);
+// A pose: 24 x 3 finite coordinates within 100 m, a body part, a time in [0, 1e9] ms.
+absl::StatusOr<LivePose> ValidatePose(const PoseRequest& pose);
 // A chunk of `pcm_bytes` must be whole sample frames and at most limits.max_chunk_samples of them.
 absl::Status ValidateChunk(size_t pcm_bytes, const ValidatedStream& stream, const StreamLimits& limits);
 

@@ -35,6 +35,7 @@ dance::v1::DanceUpdate Encode(const Update& update, bool with_rotations) {
     for (const std::string& s : m.styles) si->add_styles(s);
     si->set_samples_per_step(m.samples_per_step);
     si->set_frames_per_step(m.frames_per_step);
+    si->set_pose_latency_ms(m.pose_latency_ms);
   } else if (const FrameUpdate* frame = update.frame()) {
     const FrameData& f = frame->pose;
     dance::v1::PoseFrame* pf = u.mutable_frame();
@@ -96,13 +97,85 @@ StreamRequest StreamRequestFromProto(const dance::v1::StreamHeader& h) {
   r.client_name = h.client_name();
   r.omit_rotations = h.omit_rotations();
   r.raw_feet = h.raw_feet();
+  if (h.has_controls()) r.controls = ControlsFromProto(h.controls());
   return r;
+}
+
+namespace {
+
+MotionSpec MotionFromProto(const dance::v1::Motion& m) {
+  MotionSpec out;
+  out.positions.assign(m.positions().begin(), m.positions().end());
+  out.file = m.file();
+  out.start_s = m.start_ms() / 1000.0;
+  for (double t : m.times_ms()) out.times_s.push_back(t / 1000.0);
+  return out;
+}
+
+PathPointSpec PathPointFromProto(const dance::v1::PathPoint& p) {
+  PathPointSpec out;
+  out.t_s = p.t_ms() / 1000.0;
+  out.x = p.x();
+  out.z = p.z();
+  if (p.has_facing()) out.facing = p.facing();
+  return out;
+}
+
+}  // namespace
+
+ControlSpec ControlsFromProto(const dance::v1::MotionControls& c) {
+  ControlSpec out;
+  out.seed = MotionFromProto(c.seed());
+  out.given_upper = MotionFromProto(c.given_upper());
+  out.given_lower = MotionFromProto(c.given_lower());
+  out.keyframes = MotionFromProto(c.keyframes());
+  out.inpaint = MotionFromProto(c.inpaint());
+  for (const dance::v1::MaskSpan& m : c.inpaint_known()) {
+    out.inpaint_known.push_back({m.start_ms() / 1000.0, m.end_ms() / 1000.0, {m.joints().begin(), m.joints().end()}});
+  }
+  for (const dance::v1::PathPoint& p : c.trajectory()) out.trajectory.push_back(PathPointFromProto(p));
+  return out;
+}
+
+SteerTarget SteerFromProto(const dance::v1::SteerTarget& s) {
+  SteerTarget out;
+  if (s.has_point()) {
+    const PathPointSpec p = PathPointFromProto(s.point());
+    out.kind = SteerTarget::Kind::kPoint;
+    out.t_s = p.t_s;
+    out.x = p.x;
+    out.z = p.z;
+    out.facing = p.facing;
+  } else {
+    // A velocity, or (neither set) a zero velocity: the steering released.
+    out.kind = SteerTarget::Kind::kVelocity;
+    out.x = s.velocity().x();
+    out.z = s.velocity().z();
+    if (s.velocity().has_facing()) out.facing = s.velocity().facing();
+    out.hold_s = s.velocity().hold_ms() == 0.0 ? 1.0 : s.velocity().hold_ms() / 1000.0;
+  }
+  return out;
+}
+
+PoseRequest PoseFromProto(const dance::v1::PoseInput& p) {
+  PoseRequest out;
+  out.time_ms = p.time_ms();
+  out.positions.assign(p.positions().begin(), p.positions().end());
+  switch (p.part()) {
+    case dance::v1::BODY_PART_UPPER: out.part = BodyPart::kUpper; break;
+    case dance::v1::BODY_PART_LOWER: out.part = BodyPart::kLower; break;
+    case dance::v1::BODY_PART_ALL: out.part = BodyPart::kAll; break;
+    default: out.part = BodyPart::kUnspecified; break;
+  }
+  return out;
 }
 
 ControlRequest ControlRequestFromProto(const dance::v1::Control& c) {
   ControlRequest r;
   r.style = StyleFromProto(c.style());
   if (c.has_sampling()) r.sampling = SamplingFromProto(c.sampling());
+  if (c.has_controls()) r.controls = ControlsFromProto(c.controls());
+  if (c.has_steer()) r.steer = SteerFromProto(c.steer());
   return r;
 }
 
@@ -147,6 +220,7 @@ void ModelToProto(const ModelDescription& m, dance::v1::ModelInfo* out) {
   out->set_default_guidance(m.default_guidance);
   out->set_default_music_guidance(m.default_music_guidance);
   out->set_default_top_p(m.default_top_p);
+  out->set_pose_latency_ms(m.pose_latency_ms);
 }
 
 }  // namespace dance::server

@@ -23,6 +23,9 @@ StyleMix StyleFromProto(const google::protobuf::RepeatedPtrField<dance::v1::Styl
 SamplingRequest SamplingFromProto(const dance::v1::Sampling& sampling);
 StreamRequest StreamRequestFromProto(const dance::v1::StreamHeader& header);
 ControlRequest ControlRequestFromProto(const dance::v1::Control& control);
+ControlSpec ControlsFromProto(const dance::v1::MotionControls& controls);
+SteerTarget SteerFromProto(const dance::v1::SteerTarget& steer);
+PoseRequest PoseFromProto(const dance::v1::PoseInput& pose);
 // ValidateStream(StreamRequestFromProto(header), ...): INVALID_ARGUMENT naming the field.
 absl::StatusOr<ValidatedStream> ValidateHeader(const dance::v1::StreamHeader& header, const ModelDescription& model,
                                                const StreamLimits& limits);

@@ -132,9 +132,16 @@ class PerformReactor final : public grpc::ServerBidiReactor<PerformRequest, Danc
         absl::StatusOr<ValidatedControl> c =
             ValidateControl(ControlRequestFromProto(request_.control()), service_->hub()->model());
         if (!c.ok()) return c.status();
-        absl::Status q = session()->EnqueueControl(std::move(c->style), c->sampling);
+        absl::Status q = session()->EnqueueControl(*std::move(c));
         // A control racing the session's end is harmless ("any time after the header"): ignore it.
         if (q.code() == absl::StatusCode::kFailedPrecondition) return absl::OkStatus();
+        return q;
+      }
+      case PerformRequest::kPoses: {
+        if (session() == nullptr) return absl::InvalidArgumentError("poses before the StreamHeader");
+        std::vector<PoseRequest> poses{PoseFromProto(request_.poses())};
+        absl::Status q = session()->EnqueuePoses(std::move(poses), now);
+        if (q.code() == absl::StatusCode::kFailedPrecondition) return absl::OkStatus();  // raced the end
         return q;
       }
       case PerformRequest::kEnd:

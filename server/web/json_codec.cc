@@ -112,7 +112,160 @@ std::string Encode(const Update& update, bool with_rotations, int64_t dropped_be
   return j.dump(-1, ' ', false, json::error_handler_t::replace);
 }
 
+// {"positions": [...], "file": "...", "start_ms": MS, "times_ms": [...]}
+absl::StatusOr<MotionSpec> MotionFromJson(const json& j, const char* name) {
+  MotionSpec m;
+  if (!j.is_object()) return absl::InvalidArgumentError(absl::StrCat("controls.", name, " must be an object"));
+  if (j.contains("positions")) {
+    if (!j["positions"].is_array()) {
+      return absl::InvalidArgumentError(absl::StrCat("controls.", name, ".positions must be a list of numbers"));
+    }
+    m.positions.reserve(j["positions"].size());
+    for (const json& v : j["positions"]) {
+      if (!v.is_number()) {
+        return absl::InvalidArgumentError(absl::StrCat("controls.", name, ".positions must be a list of numbers"));
+      }
+      m.positions.push_back(v.get<float>());
+    }
+  }
+  if (j.contains("file")) {
+    if (!j["file"].is_string()) {
+      return absl::InvalidArgumentError(absl::StrCat("controls.", name, ".file must be the file's text"));
+    }
+    m.file = j["file"].get<std::string>();
+  }
+  double start_ms = 0.0;
+  if (absl::Status s = Number(j, "start_ms", &start_ms); !s.ok()) return s;
+  m.start_s = start_ms / 1000.0;
+  if (j.contains("times_ms")) {
+    if (!j["times_ms"].is_array()) return absl::InvalidArgumentError(absl::StrCat("controls.", name, ".times_ms must be a list"));
+    for (const json& t : j["times_ms"]) {
+      if (!t.is_number()) return absl::InvalidArgumentError(absl::StrCat("controls.", name, ".times_ms must be numbers"));
+      m.times_s.push_back(t.get<double>() / 1000.0);
+    }
+  }
+  return m;
+}
+
+// {"t_ms", "x", "z", "facing" (optional)}
+absl::StatusOr<PathPointSpec> PathPointFromJson(const json& j, const char* what) {
+  if (!j.is_object() || !j.contains("t_ms") || !j.contains("x") || !j.contains("z")) {
+    return absl::InvalidArgumentError(absl::StrCat(what, " needs t_ms, x and z"));
+  }
+  PathPointSpec p;
+  double t_ms = 0.0;
+  absl::Status st;
+  st.Update(Number(j, "t_ms", &t_ms));
+  st.Update(Number(j, "x", &p.x));
+  st.Update(Number(j, "z", &p.z));
+  if (j.contains("facing")) {
+    float f = 0.0f;
+    st.Update(Number(j, "facing", &f));
+    p.facing = f;
+  }
+  if (!st.ok()) return absl::InvalidArgumentError(absl::StrCat(what, ": ", st.message()));
+  p.t_s = t_ms / 1000.0;
+  return p;
+}
+
 }  // namespace
+
+absl::StatusOr<ControlSpec> ControlsFromJson(const json& j) {
+  if (!j.is_object()) return absl::InvalidArgumentError("controls must be an object");
+  ControlSpec c;
+  for (const auto& [key, m] : {std::pair{"seed", &c.seed}, std::pair{"given_upper", &c.given_upper},
+                               std::pair{"given_lower", &c.given_lower}, std::pair{"keyframes", &c.keyframes},
+                               std::pair{"inpaint", &c.inpaint}}) {
+    if (!j.contains(key)) continue;
+    absl::StatusOr<MotionSpec> motion = MotionFromJson(j[key], key);
+    if (!motion.ok()) return motion.status();
+    *m = *std::move(motion);
+  }
+  if (j.contains("inpaint_known")) {
+    if (!j["inpaint_known"].is_array()) return absl::InvalidArgumentError("controls.inpaint_known must be a list");
+    for (const json& k : j["inpaint_known"]) {
+      if (!k.is_object() || !k.contains("start_ms") || !k.contains("end_ms") || !k.contains("joints") ||
+          !k["joints"].is_array()) {
+        return absl::InvalidArgumentError("controls.inpaint_known entries need start_ms, end_ms and joints");
+      }
+      MaskSpanSpec span;
+      double a = 0.0, b = 0.0;
+      absl::Status st;
+      st.Update(Number(k, "start_ms", &a));
+      st.Update(Number(k, "end_ms", &b));
+      if (!st.ok()) return absl::InvalidArgumentError(absl::StrCat("controls.inpaint_known: ", st.message()));
+      span.start_s = a / 1000.0;
+      span.end_s = b / 1000.0;
+      for (const json& n : k["joints"]) {
+        if (!n.is_string()) return absl::InvalidArgumentError("controls.inpaint_known: joints are names");
+        span.joints.push_back(n.get<std::string>());
+      }
+      c.inpaint_known.push_back(std::move(span));
+    }
+  }
+  if (j.contains("trajectory")) {
+    if (!j["trajectory"].is_array()) return absl::InvalidArgumentError("controls.trajectory must be a list");
+    for (const json& p : j["trajectory"]) {
+      absl::StatusOr<PathPointSpec> q = PathPointFromJson(p, "controls.trajectory point");
+      if (!q.ok()) return q.status();
+      c.trajectory.push_back(*q);
+    }
+  }
+  return c;
+}
+
+absl::StatusOr<SteerTarget> SteerFromJson(const json& j) {
+  SteerTarget t;
+  if (j.is_object() && j.contains("point")) {
+    absl::StatusOr<PathPointSpec> p = PathPointFromJson(j["point"], "steer.point");
+    if (!p.ok()) return p.status();
+    t.kind = SteerTarget::Kind::kPoint;
+    t.t_s = p->t_s;
+    t.x = p->x;
+    t.z = p->z;
+    t.facing = p->facing;
+    return t;
+  }
+  if (!j.is_object() || !j.contains("velocity") || !j["velocity"].is_object()) {
+    return absl::InvalidArgumentError("steer needs a point {t_ms, x, z} or a velocity {x, z}");
+  }
+  const json& v = j["velocity"];
+  t.kind = SteerTarget::Kind::kVelocity;
+  double hold_ms = 1000.0;
+  absl::Status st;
+  st.Update(Number(v, "x", &t.x));
+  st.Update(Number(v, "z", &t.z));
+  st.Update(Number(v, "hold_ms", &hold_ms));
+  if (v.contains("facing")) {
+    float f = 0.0f;
+    st.Update(Number(v, "facing", &f));
+    t.facing = f;
+  }
+  if (!st.ok()) return absl::InvalidArgumentError(absl::StrCat("steer.velocity: ", st.message()));
+  t.hold_s = hold_ms / 1000.0;
+  return t;
+}
+
+absl::StatusOr<std::vector<PoseRequest>> PosesFromJson(const json& j) {
+  if (!j.contains("poses") || !j["poses"].is_array()) return absl::InvalidArgumentError("poses must be a list");
+  std::vector<PoseRequest> out;
+  for (const json& p : j["poses"]) {
+    if (!p.is_object()) return absl::InvalidArgumentError("a pose must be an object");
+    PoseRequest r;
+    if (absl::Status s = Number(p, "time_ms", &r.time_ms); !s.ok()) return s;
+    if (p.contains("positions") && p["positions"].is_array()) {
+      for (const json& v : p["positions"]) {
+        if (!v.is_number()) return absl::InvalidArgumentError("poses: positions must be numbers");
+        r.positions.push_back(v.get<float>());
+      }
+    }
+    const std::string part = p.contains("part") && p["part"].is_string() ? p["part"].get<std::string>() : "";
+    r.part = part == "upper" ? BodyPart::kUpper : part == "lower" ? BodyPart::kLower
+           : part == "all" ? BodyPart::kAll : BodyPart::kUnspecified;
+    out.push_back(std::move(r));
+  }
+  return out;
+}
 
 absl::StatusOr<StreamRequest> StreamRequestFromJson(const json& j) {
   StreamRequest r;
@@ -134,6 +287,11 @@ absl::StatusOr<StreamRequest> StreamRequestFromJson(const json& j) {
   if (j.contains("client_name") && j["client_name"].is_string()) r.client_name = j["client_name"].get<std::string>();
   if (j.contains("omit_rotations") && j["omit_rotations"].is_boolean()) r.omit_rotations = j["omit_rotations"].get<bool>();
   if (j.contains("raw_feet") && j["raw_feet"].is_boolean()) r.raw_feet = j["raw_feet"].get<bool>();
+  if (j.contains("controls")) {
+    absl::StatusOr<ControlSpec> c = ControlsFromJson(j["controls"]);
+    if (!c.ok()) return c.status();
+    r.controls = *std::move(c);
+  }
   return r;
 }
 
@@ -147,6 +305,16 @@ absl::StatusOr<ControlRequest> ControlRequestFromJson(const json& j) {
   absl::StatusOr<std::optional<SamplingRequest>> sampling = SamplingFromJson(j);
   if (!sampling.ok()) return sampling.status();
   c.sampling = *sampling;
+  if (j.contains("controls")) {
+    absl::StatusOr<ControlSpec> controls = ControlsFromJson(j["controls"]);
+    if (!controls.ok()) return controls.status();
+    c.controls = *std::move(controls);
+  }
+  if (j.contains("steer")) {
+    absl::StatusOr<SteerTarget> steer = SteerFromJson(j["steer"]);
+    if (!steer.ok()) return steer.status();
+    c.steer = *steer;
+  }
   return c;
 }
 
@@ -173,6 +341,7 @@ json ModelToJson(const ModelDescription& m) {
               {"styles", m.styles}, {"default_period_lock", m.default_period_lock},
               {"style_period_lock", m.style_period_lock},
               {"default_guidance", m.default_guidance}, {"default_top_p", m.default_top_p},
+              {"pose_latency_ms", m.pose_latency_ms},
               {"default_music_guidance", m.default_music_guidance}};
 }
 

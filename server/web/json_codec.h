@@ -13,6 +13,7 @@
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -27,10 +28,18 @@ namespace dance::server {
 
 // ---- in ----
 // {"type": "start", "sample_rate", "channels", "seed", "style", sampling keys, "client_name",
-// "omit_rotations", "raw_feet"}: float32 PCM. INVALID_ARGUMENT for a key of the wrong type.
+// "omit_rotations", "raw_feet", "controls"}: float32 PCM. INVALID_ARGUMENT for a key of the wrong type.
 absl::StatusOr<StreamRequest> StreamRequestFromJson(const nlohmann::json& start);
-// {"type": "control", "style", sampling keys}.
+// {"type": "control", "style", sampling keys, "controls", "steer"}.
 absl::StatusOr<ControlRequest> ControlRequestFromJson(const nlohmann::json& control);
+// "controls": {"seed"|"given_upper"|"given_lower"|"keyframes"|"inpaint": {"positions", "file", "start_ms",
+// "times_ms"}, "inpaint_known": [{"start_ms", "end_ms", "joints"}], "trajectory": [{"t_ms", "x", "z",
+// "facing"}]} (dance.v1.MotionControls; "file" is the file's text).
+absl::StatusOr<ControlSpec> ControlsFromJson(const nlohmann::json& controls);
+// "steer": {"point": {"t_ms", "x", "z", "facing"}} or {"velocity": {"x", "z", "facing", "hold_ms"}}.
+absl::StatusOr<SteerTarget> SteerFromJson(const nlohmann::json& steer);
+// {"type": "poses", "poses": [{"time_ms", "positions": [72 numbers], "part": "upper"|"lower"|"all"}]}.
+absl::StatusOr<std::vector<PoseRequest>> PosesFromJson(const nlohmann::json& poses);
 
 // ---- out ----
 // The update as its JSON text message. For dropped_before == 0 the text is built once per update and

@@ -269,9 +269,16 @@ void WebHandler::PerformSocket(const HttpRequest& req, HttpConnection& conn) {
         error = c.status();
         break;
       }
-      error = session->EnqueueControl(std::move(c->style), c->sampling);
+      error = session->EnqueueControl(*std::move(c));
+    } else if (type == "poses") {
+      absl::StatusOr<std::vector<PoseRequest>> poses = PosesFromJson(j);
+      if (!poses.ok()) {
+        error = poses.status();
+        break;
+      }
+      error = session->EnqueuePoses(*std::move(poses), absl::Now());
     } else {
-      error = absl::InvalidArgumentError("expected a binary audio message or a JSON control/end message");
+      error = absl::InvalidArgumentError("expected a binary audio message or a JSON control, poses or end message");
     }
   }
   if (!error.ok()) {

@@ -39,7 +39,7 @@ std::string TinyModelPath() {
   return path;
 }
 
-ServerHarness::ServerHarness(std::function<void(DanceServerOptions&)> configure) {
+ServerHarness::ServerHarness(std::function<void(DanceServerOptions&)> configure, const std::string& model_path) {
   SetLogLevel(LogLevel::kWarning);
   DanceServerOptions o;
   o.host = "127.0.0.1";
@@ -47,7 +47,7 @@ ServerHarness::ServerHarness(std::function<void(DanceServerOptions&)> configure)
   o.http_port = 0;
   o.web.web_root = "";
   if (configure) configure(o);
-  absl::StatusOr<std::unique_ptr<EngineBackend>> backend = LoadEngineBackend(TinyModelPath());
+  absl::StatusOr<std::unique_ptr<EngineBackend>> backend = LoadEngineBackend(model_path.empty() ? TinyModelPath() : model_path);
   if (!backend.ok()) {
     ADD_FAILURE() << backend.status();
     std::abort();

@@ -26,7 +26,8 @@ std::string TinyModelPath();
 
 class ServerHarness {
  public:
-  explicit ServerHarness(std::function<void(DanceServerOptions&)> configure = nullptr);
+  explicit ServerHarness(std::function<void(DanceServerOptions&)> configure = nullptr,
+                         const std::string& model_path = "");  // "" = TinyModelPath()
   ~ServerHarness();
   DanceServer& server() { return *server_; }
   std::string target() const;
