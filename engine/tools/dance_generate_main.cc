@@ -11,6 +11,9 @@
 // --trajectory reads dance-trajectory/v1, --mask dance-mask/v1. They combine (later ones win where two
 // give the same joint: inpaint, given halves, seed, keyframes).
 //
+// --gltf writes glTF 2.0 (a skinned skeleton with the dance as its animation; .glb binary or .gltf text),
+// --vrma VRM Animation (client/export/gltf_writer.h).
+//
 // The audio is pushed in chunks of N input frames (default 4096; the dance does not depend on N), stepping
 // whenever a step is ready, exactly as a live stream would. Frames past the end of the audio are dropped.
 // Prints one JSON summary line (frames, seconds of audio, wall time, x real time) unless --quiet.
@@ -32,6 +35,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
+#include "client/export/gltf_writer.h"
 #include "engine/engine.h"
 #include "nlohmann/json.hpp"
 
@@ -41,6 +45,7 @@ using namespace dance::engine;  // NOLINT: a tool's main
 
 struct Flags {
   std::string audio, out, bvh, model;
+  std::string gltf, vrma;  // glTF 2.0 (.glb / .gltf) and VRM Animation outputs
   uint64_t seed = 0;
   std::string style;
   SamplingOptions sampling;
@@ -55,7 +60,23 @@ constexpr char kUsage[] =
     "                      [--chunk-samples N] [--crouch-guard 0|1] [--foot-lock 0|1]\n"
     "                      [--bvh DANCE.bvh] [--quiet]\n"
     "                      [--seed-motion FILE] [--given-upper FILE] [--given-lower FILE] [--keyframes FILE]\n"
-    "                      [--inpaint FILE --mask MASK.json] [--trajectory PATH.json]\n";
+    "                      [--inpaint FILE --mask MASK.json] [--trajectory PATH.json]\n"
+    "                      [--gltf DANCE.glb|.gltf] [--vrma DANCE.vrma]\n";
+
+// The frames as plain arrays for the glTF / VRMA writers.
+dance::client::MotionClip ClipOf(const Skeleton& skeleton, const std::vector<PoseFrame>& frames) {
+  dance::client::MotionClip clip;
+  clip.joint_names = skeleton.joint_names;
+  for (int j = 0; j < kNumJoints; ++j) {
+    clip.parents.push_back(skeleton.parents[j]);
+    clip.rest_offsets.push_back({skeleton.offsets[j].x(), skeleton.offsets[j].y(), skeleton.offsets[j].z()});
+  }
+  for (const PoseFrame& f : frames) {
+    clip.root_positions.push_back({f.positions[0].x(), f.positions[0].y(), f.positions[0].z()});
+    for (const Eigen::Quaternionf& q : f.rotations) clip.rotations.push_back({q.w(), q.x(), q.y(), q.z()});
+  }
+  return clip;
+}
 
 absl::Status ParseFlags(int argc, char** argv, Flags* f) {
   for (int i = 1; i < argc; ++i) {
@@ -74,6 +95,10 @@ absl::Status ParseFlags(int argc, char** argv, Flags* f) {
       f->out = v;
     } else if (arg == "--bvh") {
       f->bvh = v;
+    } else if (arg == "--gltf") {
+      f->gltf = v;
+    } else if (arg == "--vrma") {
+      f->vrma = v;
     } else if (arg == "--model") {
       f->model = v;
     } else if (arg == "--style") {
@@ -274,6 +299,12 @@ absl::Status Run(Flags flags) {
   if (absl::Status st = WriteDanceJson(flags.out, (*model)->skeleton(), frames, info); !st.ok()) return st;
   if (!flags.bvh.empty()) {
     if (absl::Status st = WriteBvh(flags.bvh, (*model)->skeleton(), frames); !st.ok()) return st;
+  }
+  for (const std::string& path : {flags.gltf, flags.vrma}) {
+    if (path.empty()) continue;
+    if (absl::Status st = dance::client::WriteMotionFile(path, ClipOf((*model)->skeleton(), frames)); !st.ok()) {
+      return st;
+    }
   }
   if (!flags.quiet) {
     nlohmann::json summary = {{"frames", frames.size()},

@@ -60,7 +60,28 @@ def main():
             assert len(d["positions"]) >= 80, len(d["positions"])  # 3 s at 30 fps, minus the first period
             assert all(len(p) == 24 and len(p[0]) == 3 for p in d["positions"])
             assert len(d["rotations"]) == len(d["positions"])
-            print("python client OK:", len(d["positions"]), "frames")
+            n_free = len(d["positions"])
+            # Controls from Python: a floor path in the header and a steer mid-stream are accepted ...
+            path = os.path.join(tmp, "path.json")
+            with open(path, "w") as fh:
+                json.dump({"format": "dance-trajectory/v1",
+                           "points": [{"t": 0.0, "x": 0.0, "z": 0.0}, {"t": 2.0, "x": 0.5, "z": 0.0}]}, fh)
+            r = subprocess.run([sys.executable, os.path.join(src, "client", "python", "dance_client.py"),
+                                "--server", f"127.0.0.1:{port}", "--audio", wav, "--out", out, "--seed", "3",
+                                "--trajectory", path, "--steer", "1:2.5:0:1"],
+                               capture_output=True, text=True, timeout=120)
+            print(r.stdout, r.stderr)
+            assert r.returncode == 0, "a run with a path and a steer"
+            assert len(json.load(open(out))["positions"]) == n_free
+            # ... and a path out of time order is refused, naming it.
+            with open(path, "w") as fh:
+                json.dump({"format": "dance-trajectory/v1",
+                           "points": [{"t": 2.0, "x": 0.0, "z": 0.0}, {"t": 1.0, "x": 0.5, "z": 0.0}]}, fh)
+            r = subprocess.run([sys.executable, os.path.join(src, "client", "python", "dance_client.py"),
+                                "--server", f"127.0.0.1:{port}", "--audio", wav, "--out", out,
+                                "--trajectory", path], capture_output=True, text=True, timeout=120)
+            assert r.returncode != 0 and "INVALID_ARGUMENT" in r.stderr and "trajectory" in r.stderr, r.stderr
+            print("python client OK:", n_free, "frames; controls accepted and refused as they should be")
             return 0
     finally:
         server.send_signal(signal.SIGTERM)

@@ -42,6 +42,8 @@ class DanceServiceServicer(object):
     def Perform(self, request_iterator, context):
         """Bidirectional streaming. The client sends one StreamHeader, then AudioChunk messages (any size up to the
         server's --max-chunk-samples), optional Control messages, and finally EndOfAudio (then half-closes).
+        A client that drives one part of the body live (a mocap rig giving the upper or lower half) also sends
+        PoseInput messages, one per pose, as they are captured.
         The server answers with exactly one SessionInfo, then PoseFrame messages in index order (no frame is
         ever dropped for the performer), Event messages, and one StreamEnd before closing with OK.
         Status codes: INVALID_ARGUMENT (no header first, audio before header, bad sample rate/channels/format,
