@@ -2,9 +2,13 @@
 
 #include <cmath>
 #include <fstream>
+#include <sstream>
 
+#include "absl/strings/ascii.h"
+#include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "client/export/gltf_writer.h"
 
 namespace dance::client {
 namespace {
@@ -132,6 +136,115 @@ std::string DanceToBvh(const dance::v1::SessionInfo& info, const std::vector<dan
 absl::Status WriteBvh(const std::string& path, const dance::v1::SessionInfo& info,
                       const std::vector<dance::v1::PoseFrame>& frames) {
   return WriteText(path, DanceToBvh(info, frames));
+}
+
+MotionClip ClipFromStream(const dance::v1::SessionInfo& info, const std::vector<dance::v1::PoseFrame>& frames) {
+  const auto& sk = info.skeleton();
+  MotionClip clip;
+  clip.fps = info.fps() > 0 ? info.fps() : 30.0;
+  clip.joint_names.assign(sk.joint_names().begin(), sk.joint_names().end());
+  clip.parents.assign(sk.parents().begin(), sk.parents().end());
+  const int n = sk.parents_size();
+  for (int j = 0; j < n && 3 * j + 2 < sk.rest_offsets_size(); ++j) {
+    clip.rest_offsets.push_back({sk.rest_offsets(3 * j), sk.rest_offsets(3 * j + 1), sk.rest_offsets(3 * j + 2)});
+  }
+  for (const auto& f : frames) {
+    clip.root_positions.push_back(f.positions_size() >= 3 ? Vec3{f.positions(0), f.positions(1), f.positions(2)}
+                                                          : Vec3{0, 0, 0});
+    for (int j = 0; j < n; ++j) {
+      if (f.rotations_size() >= 4 * (j + 1)) {
+        clip.rotations.push_back(
+            {f.rotations(4 * j), f.rotations(4 * j + 1), f.rotations(4 * j + 2), f.rotations(4 * j + 3)});
+      } else {
+        clip.rotations.push_back({1, 0, 0, 0});
+      }
+    }
+  }
+  return clip;
+}
+
+absl::Status WriteDanceFile(const std::string& path, const dance::v1::SessionInfo& info,
+                            const std::vector<dance::v1::PoseFrame>& frames, uint64_t seed) {
+  const std::string lower = absl::AsciiStrToLower(path);
+  if (absl::EndsWith(lower, ".bvh")) return WriteBvh(path, info, frames);
+  GltfKind kind;
+  if (GltfKindForPath(path, &kind)) return WriteMotionFile(path, ClipFromStream(info, frames));
+  return WriteDanceJson(path, info, frames, seed);
+}
+
+absl::Status ReadDanceJson(const std::string& path, dance::v1::SessionInfo* info,
+                           std::vector<dance::v1::PoseFrame>* frames) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return absl::NotFoundError(absl::StrCat("cannot read ", path));
+  std::stringstream text;
+  text << in.rdbuf();
+  const nlohmann::json doc = nlohmann::json::parse(text.str(), nullptr, /*allow_exceptions=*/false);
+  auto bad = [&](const std::string& why) { return absl::InvalidArgumentError(absl::StrCat(path, ": ", why)); };
+  if (!doc.is_object() || doc.value("format", "") != "dance-motion/v1") return bad("not a dance-motion/v1 file");
+  for (const char* key : {"joint_names", "parents", "rest_offsets", "positions"}) {
+    if (!doc.contains(key) || !doc[key].is_array()) return bad(absl::StrCat("no '", key, "' array"));
+  }
+  const size_t n = doc["parents"].size();
+  if (doc["joint_names"].size() != n || doc["rest_offsets"].size() != n) {
+    return bad("joint_names, parents and rest_offsets differ in length");
+  }
+  info->Clear();
+  frames->clear();
+  info->set_fps(doc.contains("fps") && doc["fps"].is_number() ? doc["fps"].get<double>() : 30.0);
+  if (doc.contains("model_id") && doc["model_id"].is_string()) info->set_model_id(doc["model_id"].get<std::string>());
+  if (doc.contains("session_id") && doc["session_id"].is_string()) {
+    info->set_session_id(doc["session_id"].get<std::string>());
+  }
+  auto* sk = info->mutable_skeleton();
+  for (size_t j = 0; j < n; ++j) {
+    const auto& name = doc["joint_names"][j];
+    const auto& parent = doc["parents"][j];
+    const auto& off = doc["rest_offsets"][j];
+    if (!name.is_string() || !parent.is_number_integer() || !off.is_array() || off.size() != 3) {
+      return bad(absl::StrCat("bad skeleton entry ", j));
+    }
+    sk->add_joint_names(name.get<std::string>());
+    sk->add_parents(parent.get<int>());
+    for (const auto& v : off) {
+      if (!v.is_number()) return bad(absl::StrCat("bad rest offset ", j));
+      sk->add_rest_offsets(v.get<float>());
+    }
+  }
+  const auto& positions = doc["positions"];
+  const bool has_rot = doc.contains("rotations") && doc["rotations"].is_array();
+  if (has_rot && doc["rotations"].size() != positions.size()) return bad("rotations and positions differ in length");
+  const double offset_s = doc.contains("audio_offset_s") && doc["audio_offset_s"].is_number()
+                              ? doc["audio_offset_s"].get<double>()
+                              : 0.0;
+  const int64_t first = doc.contains("first_frame_index") && doc["first_frame_index"].is_number_integer()
+                            ? doc["first_frame_index"].get<int64_t>()
+                            : 0;
+  for (size_t t = 0; t < positions.size(); ++t) {
+    dance::v1::PoseFrame f;
+    f.set_index(first + static_cast<int64_t>(t));
+    f.set_time_ms((offset_s + t / info->fps()) * 1000.0);
+    if (!positions[t].is_array() || positions[t].size() != n) return bad(absl::StrCat("bad positions[", t, "]"));
+    for (const auto& p : positions[t]) {
+      if (!p.is_array() || p.size() != 3) return bad(absl::StrCat("bad positions[", t, "]"));
+      for (const auto& v : p) {
+        if (!v.is_number()) return bad(absl::StrCat("bad positions[", t, "]"));
+        f.add_positions(v.get<float>());
+      }
+    }
+    if (has_rot) {
+      const auto& r = doc["rotations"][t];
+      if (!r.is_array() || r.size() != n) return bad(absl::StrCat("bad rotations[", t, "]"));
+      for (const auto& q : r) {
+        if (!q.is_array() || q.size() != 4) return bad(absl::StrCat("bad rotations[", t, "]"));
+        for (const auto& v : q) {
+          if (!v.is_number()) return bad(absl::StrCat("bad rotations[", t, "]"));
+          f.add_rotations(v.get<float>());
+        }
+      }
+    }
+    frames->push_back(std::move(f));
+  }
+  return absl::OkStatus();
 }
 
 }  // namespace dance::client

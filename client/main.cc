@@ -5,10 +5,17 @@
 //   dance-client watch --server HOST:P --session ID [--out DANCE.json] [--frames N]
 //   dance-client load --server HOST:P --audio FILE --streams N --duration S [--style S] [--guidance W] [--music-guidance M]
 //   dance-client info --server HOST:P          (model info and live sessions)
+//   dance-client play --in DANCE.json [--vmc HOST[:PORT]] [--out DANCE.glb]   (replay over VMC; convert)
+// --out picks the format by extension: .json (dance-motion/v1), .bvh, .glb / .gltf (glTF 2.0 skinned
+// skeleton + animation), .vrma (VRM Animation). --vmc HOST[:PORT] (perform, watch, play) sends the dance
+// live over the VMC protocol (default port 39539; client/vmc_sender.h), --vmc-fps 60 interpolated or 0 at
+// the stream's rate, --vmc-bundle=false one OSC message per datagram.
 // Exit status: 0 on success, 1 on an RPC error (the status is printed), 2 on bad usage.
 #include <algorithm>
+#include <atomic>
 #include <fstream>
 #include <iostream>
+#include <limits>
 #include <map>
 #include <memory>
 #include <string>
@@ -27,6 +34,7 @@
 #include "client/dance_file.h"
 #include "client/load_test.h"
 #include "client/perform_stream.h"
+#include "client/vmc_stream.h"
 #include "dance/v1/dance.grpc.pb.h"
 
 ABSL_FLAG(std::string, server, "localhost:50051", "Server address host:port.");
@@ -34,7 +42,7 @@ ABSL_FLAG(std::string, audio, "", "Audio file to stream (WAV, FLAC, Ogg/Vorbis, 
 ABSL_FLAG(bool, mic, false, "Stream the default microphone instead of a file (PortAudio).");
 ABSL_FLAG(double, mic_seconds, 30.0, "Microphone recording length, s.");
 ABSL_FLAG(int, mic_rate, 48000, "Microphone sample rate, Hz.");
-ABSL_FLAG(std::string, out, "", "Save the dance as dance-motion/v1 JSON here.");
+ABSL_FLAG(std::string, out, "", "Save the dance here: .json (dance-motion/v1), .bvh, .glb, .gltf or .vrma.");
 ABSL_FLAG(std::string, bvh, "", "Save the dance as BVH here.");
 ABSL_FLAG(bool, realtime, false, "Pace the file in real time (default: as fast as the server takes it).");
 ABSL_FLAG(bool, play, false, "Play the file on the default audio output while streaming (implies --realtime).");
@@ -57,6 +65,10 @@ ABSL_FLAG(int, streams, 1, "load: concurrent sessions.");
 ABSL_FLAG(double, duration, 10.0, "load: seconds of audio per session (the file is looped).");
 ABSL_FLAG(double, stagger, 1.0, "load: spread session starts over this many seconds.");
 ABSL_FLAG(bool, quiet, false, "Less progress output.");
+ABSL_FLAG(std::string, vmc, "", "Send the dance over the VMC protocol (OSC/UDP) to HOST[:PORT] (default port 39539).");
+ABSL_FLAG(double, vmc_fps, 60.0, "VMC send rate: interpolated to this many poses/s; 0 = the stream's rate.");
+ABSL_FLAG(bool, vmc_bundle, true, "VMC: one OSC bundle per pose (false: one message per datagram).");
+ABSL_FLAG(std::string, in, "", "play: a dance-motion/v1 JSON file.");
 
 namespace {
 
@@ -91,10 +103,22 @@ int Fail(const absl::Status& s) {
   return 1;
 }
 
+// The VMC output the flags ask for, or null. A live stream catches up when its receiver falls behind;
+// a replayed file (all frames queued at once) plays every frame.
+std::unique_ptr<dance::client::VmcStreamOut> MakeVmc(bool live = true) {
+  if (absl::GetFlag(FLAGS_vmc).empty()) return nullptr;
+  dance::client::VmcRelayOptions relay;
+  relay.out_fps = std::max(0.0, absl::GetFlag(FLAGS_vmc_fps));
+  if (!live) relay.max_lag_s = std::numeric_limits<double>::infinity();
+  return std::make_unique<dance::client::VmcStreamOut>(
+      absl::GetFlag(FLAGS_vmc), dance::client::VmcOptions{.bundle = absl::GetFlag(FLAGS_vmc_bundle)}, relay);
+}
+
 int Perform() {
   std::unique_ptr<dance::client::SampleSource> source;
   std::shared_ptr<const dance::client::AudioClip> clip;
-  const bool realtime = absl::GetFlag(FLAGS_realtime) || absl::GetFlag(FLAGS_play);
+  // --vmc watches the session live, so the audio must go at the music's pace.
+  const bool realtime = absl::GetFlag(FLAGS_realtime) || absl::GetFlag(FLAGS_play) || !absl::GetFlag(FLAGS_vmc).empty();
   if (absl::GetFlag(FLAGS_mic)) {
     auto mic = dance::client::MicSource::Open(absl::GetFlag(FLAGS_mic_rate), absl::GetFlag(FLAGS_mic_seconds));
     if (!mic.ok()) return Fail(mic.status());
@@ -140,6 +164,10 @@ int Perform() {
       std::cerr << "dance-client: playback unavailable: " << p.status() << "\n";
     }
   }
+  std::unique_ptr<dance::client::VmcStreamOut> vmc = MakeVmc();
+  grpc::ClientContext vmc_context;
+  absl::Status vmc_status;
+  std::thread vmc_thread;
   const absl::Time t0 = absl::Now();
   stream.Start(t0);
   absl::Time next_print = t0 + absl::Seconds(1);
@@ -151,6 +179,12 @@ int Perform() {
       const std::string id = stream.session_id();
       std::cout << "session " << id << " (watch: dance-client watch --session " << id << ")" << std::endl;
       announced = true;
+      if (vmc) {  // VMC from a second call that watches this session (PerformStream keeps frames to the end)
+        vmc_thread = std::thread([&, id] {
+          vmc_status = dance::client::ForwardSessionToVmc(stub.get(), id, absl::GetFlag(FLAGS_token), vmc.get(),
+                                                          &vmc_context);
+        });
+      }
     }
     if (!absl::GetFlag(FLAGS_quiet) && now >= next_print) {
       std::cerr << absl::StrFormat("\r[%6.1fs] frames %lld", absl::ToDoubleSeconds(now - t0),
@@ -161,6 +195,12 @@ int Perform() {
     absl::SleepFor(absl::Milliseconds(realtime ? 5 : 20));
   }
   absl::Status st = stream.Wait();
+  if (vmc_thread.joinable()) {
+    if (!st.ok()) vmc_context.TryCancel();
+    vmc_thread.join();
+    vmc->Finish();
+    if (!vmc_status.ok()) std::cerr << "dance-client: VMC: " << vmc_status << "\n";
+  }
   if (!absl::GetFlag(FLAGS_quiet)) std::cerr << "\n";
   if (!st.ok()) return Fail(st);
   const auto& fs = stream.stats();
@@ -171,7 +211,7 @@ int Perform() {
                                static_cast<long long>(fs.frames), fs.frames / 30.0, pct(0.5), pct(0.99),
                                static_cast<long long>(fs.gaps));
   if (!absl::GetFlag(FLAGS_out).empty()) {
-    absl::Status w = dance::client::WriteDanceJson(absl::GetFlag(FLAGS_out), stream.info(), stream.frames(),
+    absl::Status w = dance::client::WriteDanceFile(absl::GetFlag(FLAGS_out), stream.info(), stream.frames(),
                                                    absl::GetFlag(FLAGS_seed));
     if (!w.ok()) return Fail(w);
     std::cout << "wrote " << absl::GetFlag(FLAGS_out) << "\n";
@@ -200,9 +240,18 @@ int Watch() {
   std::vector<dance::v1::PoseFrame> frames;
   int64_t dropped = 0;
   const int limit = absl::GetFlag(FLAGS_frames);
+  std::unique_ptr<dance::client::VmcStreamOut> vmc = MakeVmc();
   while (reader->Read(&u)) {
-    if (u.has_info()) info = u.info();
+    if (u.has_info()) {
+      info = u.info();
+      if (absl::Status v = vmc ? vmc->OnInfo(info) : absl::OkStatus(); !v.ok()) {
+        ctx.TryCancel();
+        reader->Finish();
+        return Fail(v);
+      }
+    }
     if (u.has_frame()) {
+      if (vmc) vmc->OnFrame(u.frame());
       dropped += u.frame().dropped_before();
       frames.push_back(u.frame());
       if (!absl::GetFlag(FLAGS_quiet) && frames.size() % 30 == 0) {
@@ -215,18 +264,42 @@ int Watch() {
     }
   }
   grpc::Status st = reader->Finish();
+  if (vmc) vmc->Finish();
   std::cerr << "\n";
   if (!st.ok() && !(limit > 0 && st.error_code() == grpc::StatusCode::CANCELLED)) {
     return Fail(absl::Status(static_cast<absl::StatusCode>(st.error_code()), st.error_message()));
   }
   std::cout << "watched " << frames.size() << " frames, dropped " << dropped << "\n";
   if (!absl::GetFlag(FLAGS_out).empty()) {
-    absl::Status w = dance::client::WriteDanceJson(absl::GetFlag(FLAGS_out), info, frames, 0);
+    absl::Status w = dance::client::WriteDanceFile(absl::GetFlag(FLAGS_out), info, frames, 0);
     if (!w.ok()) return Fail(w);
   }
   if (!absl::GetFlag(FLAGS_bvh).empty()) {
     absl::Status w = dance::client::WriteBvh(absl::GetFlag(FLAGS_bvh), info, frames);
     if (!w.ok()) return Fail(w);
+  }
+  return 0;
+}
+
+// Replays a saved dance over VMC in real time and/or converts it (--out by extension).
+int Play() {
+  if (absl::GetFlag(FLAGS_in).empty()) {
+    std::cerr << "dance-client play: --in DANCE.json required\n";
+    return 2;
+  }
+  dance::v1::SessionInfo info;
+  std::vector<dance::v1::PoseFrame> frames;
+  if (absl::Status s = dance::client::ReadDanceJson(absl::GetFlag(FLAGS_in), &info, &frames); !s.ok()) return Fail(s);
+  if (!absl::GetFlag(FLAGS_out).empty()) {
+    if (absl::Status w = dance::client::WriteDanceFile(absl::GetFlag(FLAGS_out), info, frames, 0); !w.ok()) return Fail(w);
+    std::cout << "wrote " << absl::GetFlag(FLAGS_out) << "\n";
+  }
+  if (std::unique_ptr<dance::client::VmcStreamOut> vmc = MakeVmc(/*live=*/false)) {
+    if (absl::Status v = vmc->OnInfo(info); !v.ok()) return Fail(v);
+    for (const auto& f : frames) vmc->OnFrame(f);
+    vmc->Finish();
+    std::cout << "sent " << vmc->relay()->poses_sent() << " poses over VMC to " << absl::GetFlag(FLAGS_vmc) << "\n";
+    if (!vmc->relay()->first_error().ok()) return Fail(vmc->relay()->first_error());
   }
   return 0;
 }
@@ -315,7 +388,8 @@ std::vector<std::string> DashesToUnderscores(int argc, char** argv) {
 int main(int argc, char** argv) {
   absl::SetProgramUsageMessage(
       "dance-client [perform] --server HOST:P --audio FILE --out DANCE.json [--bvh F] [--realtime]\n"
-      "  dance-client watch --session ID | load --audio FILE --streams N --duration S | info");
+      "  dance-client watch --session ID | load --audio FILE --streams N --duration S | info\n"
+      "  dance-client play --in DANCE.json [--vmc HOST[:PORT]] [--out DANCE.glb]");
   std::vector<std::string> args = DashesToUnderscores(argc, argv);
   std::vector<char*> arg_ptrs;
   for (std::string& a : args) arg_ptrs.push_back(a.data());
@@ -325,6 +399,7 @@ int main(int argc, char** argv) {
   if (cmd == "watch") return Watch();
   if (cmd == "load") return Load();
   if (cmd == "info") return Info();
+  if (cmd == "play") return Play();
   std::cerr << "dance-client: unknown command '" << cmd << "'\n";
   return 2;
 }

@@ -13,6 +13,8 @@ PACKAGES=(
   libeigen3-dev libfftw3-dev libabsl-dev libsndfile1-dev libsoxr-dev nlohmann-json3-dev
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc libssl-dev
   portaudio19-dev libgtest-dev libgmock-dev libbenchmark-dev
+  # VMC protocol egress (OSC over UDP) in dance-client; oscdump, a real receiver for its test.
+  liblo-dev liblo-tools
   # Python side (training, evaluation, example client, tests).
   python3 python3-venv python3-pip python3-numpy python3-scipy python3-matplotlib python3-pytest
   python3-torch libopenblas0-pthread python3-tqdm python3-grpcio python3-protobuf python3-mido
