@@ -52,12 +52,14 @@ def _run(cmd: list[str], what: str) -> str:
 
 def dance_features(audio, *, out=None, pre=None, pre_input=None, summary: bool = False,
                    chunk_samples: int | None = None, clock=None, tempo_ref: float | None = None,
-                   bar_beats: int = 0, fold_tempo: bool = False, cli: pathlib.Path | None = None) -> str:
+                   bar_beats: int = 0, fold_tempo: bool = False, clock_starts=None,
+                   cli: pathlib.Path | None = None) -> str:
   """Runs `dance-features AUDIO` (docs/features.md) and returns its stdout (with summary: the summary JSON
   on its last line). out / pre / pre_input: .npy paths for the per-frame features (T, 108), PRE (T, 128) and
   PRE's input channels (T, 4); chunk_samples: feed the audio in chunks of this size; clock: a .npy path for
   the engine's tempo clock at tempo_ref BPM (`--clock`, with bar_beats > 0 the bar clock's phase, with
-  fold_tempo the folded tempo features; engine/audio/tempo_clock.h). cli: a specific binary (default:
+  fold_tempo the folded tempo features; engine/audio/tempo_clock.h); clock_starts (with clock): a .npy path
+  for each real frame's warped start W_n and rate r_n (`--clock-starts`). cli: a specific binary (default:
   require("dance-features"))."""
   cmd = [str(cli or require("dance-features")), str(audio)]
   if out is not None:
@@ -76,6 +78,8 @@ def dance_features(audio, *, out=None, pre=None, pre_input=None, summary: bool =
       cmd += ["--bar-beats", str(int(bar_beats))]
     if fold_tempo:
       cmd += ["--fold-tempo"]
+    if clock_starts is not None:
+      cmd += ["--clock-starts", str(clock_starts)]
   what = "dance-features" + (" --clock" if clock is not None else "") + f" on {audio}"
   return _run(cmd, what)
 

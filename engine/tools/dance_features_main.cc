@@ -1,8 +1,8 @@
 // dance-features: decodes an audio file and writes the engine's causal features as .npy arrays.
 //
 //   dance-features AUDIO --out FEATURES.npy [--pre PRE.npy] [--pre-input PRE_INPUT.npy]
-//                  [--clock CLOCK.npy [--tempo-ref BPM] [--bar-beats B] [--fold-tempo]] [--chunk-samples N]
-//                  [--summary]
+//                  [--clock CLOCK.npy [--tempo-ref BPM] [--bar-beats B] [--fold-tempo] [--clock-starts STARTS.npy]]
+//                  [--chunk-samples N] [--summary]
 //
 // FEATURES.npy: float32 (frames, 108); FEATURES.npy.json: the layout (names, index ranges, units).
 // PRE.npy: float32 (frames, 128). PRE_INPUT.npy: float32 (frames, 4), PRE's input channels (for the
@@ -14,7 +14,9 @@
 // has 4 columns: also (cos, sin) of the bar clock's phase at B beats per bar (audio::BarClockPhase).
 // --fold-tempo appends 49 columns: the warped frame's `tempogram` (48) and `tempo` features folded to
 // the reference tempo with its source frame's clock rate (audio::FoldTempoFeatures), as a session of a
-// model with time_base.fold_tempo sees them.
+// model with time_base.fold_tempo sees them. --clock-starts STARTS.npy: float32 (frames, 2), per real frame n
+// the warped position W_n where it starts and its clock rate r_n (warped frames per real frame): what a
+// session plays real frame n back from (training.eval.engine_parity compares the engine's dances with it).
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -40,7 +42,7 @@ namespace {
 using namespace dance::engine::audio;  // NOLINT: a tool's main
 
 struct Flags {
-  std::string audio, out, pre, pre_input, clock;
+  std::string audio, out, pre, pre_input, clock, clock_starts;
   double tempo_ref_bpm = 105.0;
   int bar_beats = 0;
   bool fold_tempo = false;
@@ -50,8 +52,8 @@ struct Flags {
 
 constexpr char kUsage[] =
     "usage: dance-features AUDIO --out FEATURES.npy [--pre PRE.npy] [--pre-input PRE_INPUT.npy]\n"
-    "                      [--clock CLOCK.npy [--tempo-ref BPM] [--bar-beats B] [--fold-tempo]] [--chunk-samples N]\n"
-    "                      [--summary]\n";
+    "                      [--clock CLOCK.npy [--tempo-ref BPM] [--bar-beats B] [--fold-tempo]\n"
+    "                      [--clock-starts STARTS.npy]] [--chunk-samples N] [--summary]\n";
 
 absl::Status ParseFlags(int argc, char** argv, Flags* flags) {
   for (int i = 1; i < argc; ++i) {
@@ -70,6 +72,8 @@ absl::Status ParseFlags(int argc, char** argv, Flags* flags) {
       s = value(&flags->pre_input);
     } else if (arg == "--clock") {
       s = value(&flags->clock);
+    } else if (arg == "--clock-starts") {
+      s = value(&flags->clock_starts);
     } else if (arg == "--tempo-ref") {
       std::string v;
       s = value(&v);
@@ -109,6 +113,9 @@ absl::Status ParseFlags(int argc, char** argv, Flags* flags) {
   if (flags->out.empty() && !flags->summary && flags->pre.empty() && flags->pre_input.empty() &&
       flags->clock.empty()) {
     return absl::InvalidArgumentError("nothing to do: give --out, --pre, --pre-input, --clock or --summary");
+  }
+  if (!flags->clock_starts.empty() && flags->clock.empty()) {
+    return absl::InvalidArgumentError("--clock-starts needs --clock");
   }
   if (flags->fold_tempo && flags->clock.empty()) {
     return absl::InvalidArgumentError("--fold-tempo needs --clock (it adds columns to the clock)");
@@ -201,11 +208,13 @@ absl::Status Run(const Flags& flags) {
   if (!flags.clock.empty()) {
     TempoClock clock({.reference_bpm = flags.tempo_ref_bpm});
     const double bar_frames = flags.bar_beats > 0 ? BarClockFrames(flags.bar_beats, flags.tempo_ref_bpm) : 0.0;
-    std::vector<float> rows;
+    std::vector<float> rows, starts;
     std::array<float, kNumFeatures> row;
     for (int64_t n = 0; n < frames; ++n) {
       const float* source = all.features.data() + n * kNumFeatures;
       const TempoClock::Span span = clock.PushFeatures(source);
+      starts.push_back(static_cast<float>(span.begin));
+      starts.push_back(static_cast<float>(span.rate));
       for (int64_t j = span.first_warped; j < span.end_warped; ++j) {
         rows.push_back(static_cast<float>(n));
         rows.push_back(static_cast<float>(span.RealPosition(j)));
@@ -224,6 +233,9 @@ absl::Status Run(const Flags& flags) {
     if (absl::Status s = WriteNpyFloat32(flags.clock, rows, static_cast<int64_t>(rows.size() / cols), cols);
         !s.ok()) {
       return s;
+    }
+    if (!flags.clock_starts.empty()) {
+      if (absl::Status s = WriteNpyFloat32(flags.clock_starts, starts, frames, 2); !s.ok()) return s;
     }
   }
   if (flags.summary) {

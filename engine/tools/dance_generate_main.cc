@@ -2,7 +2,7 @@
 //
 //   dance-generate --audio FILE --out DANCE.json [--model M (default models/default.dncw)] [--seed S] [--style NAME[:W][,NAME:W...]]
 //                  [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--music-guidance M] [--period-lock B] [--chunk-samples N]
-//                  [--crouch-guard 0|1] [--foot-lock 0|1] [--bvh DANCE.bvh] [--quiet]
+//                  [--crouch-guard 0|1] [--foot-lock 0|1] [--bvh DANCE.bvh] [--codes-out CODES.npy] [--quiet]
 //                  [--seed-motion FILE] [--given-upper FILE] [--given-lower FILE] [--keyframes FILE]
 //                  [--inpaint FILE --mask MASK.json] [--trajectory PATH.json]
 //
@@ -22,7 +22,10 @@
 // measuring it, docs/model.md section 6). --foot-lock 0 turns the foot lock off (default on; docs/model.md
 // section 7): the dance as decoded, planted feet not held. --music-guidance M: l_nm + M (l - l_nm), l_nm
 // the model reading the music mean instead of the song's music stream (1 = off; default: the model's,
-// sampling.music_guidance; docs/model.md section 6).
+// sampling.music_guidance; docs/model.md section 6). --codes-out CODES.npy: the code of every step, as sampled
+// (steps, 2) float32 (upper, lower), for comparing the engine's free-running draws with the PyTorch model's
+// (training.eval.engine_parity); the dance file's per-frame codes are those of the warped frames shown, which
+// can skip or repeat steps.
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -36,6 +39,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "client/export/gltf_writer.h"
+#include "engine/audio/npy_writer.h"
 #include "engine/engine.h"
 #include "nlohmann/json.hpp"
 
@@ -44,7 +48,7 @@ namespace {
 using namespace dance::engine;  // NOLINT: a tool's main
 
 struct Flags {
-  std::string audio, out, bvh, model;
+  std::string audio, out, bvh, model, codes_out;
   std::string gltf, vrma;  // glTF 2.0 (.glb / .gltf) and VRM Animation outputs
   uint64_t seed = 0;
   std::string style;
@@ -58,7 +62,7 @@ constexpr char kUsage[] =
     "usage: dance-generate --audio FILE --out DANCE.json [--model M] [--seed S] [--style NAME[:W],...]\n"
     "                      [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--music-guidance M] [--period-lock B]\n"
     "                      [--chunk-samples N] [--crouch-guard 0|1] [--foot-lock 0|1]\n"
-    "                      [--bvh DANCE.bvh] [--quiet]\n"
+    "                      [--bvh DANCE.bvh] [--codes-out CODES.npy] [--quiet]\n"
     "                      [--seed-motion FILE] [--given-upper FILE] [--given-lower FILE] [--keyframes FILE]\n"
     "                      [--inpaint FILE --mask MASK.json] [--trajectory PATH.json]\n"
     "                      [--gltf DANCE.glb|.gltf] [--vrma DANCE.vrma]\n";
@@ -95,6 +99,8 @@ absl::Status ParseFlags(int argc, char** argv, Flags* f) {
       f->out = v;
     } else if (arg == "--bvh") {
       f->bvh = v;
+    } else if (arg == "--codes-out") {
+      f->codes_out = v;
     } else if (arg == "--gltf") {
       f->gltf = v;
     } else if (arg == "--vrma") {
@@ -259,17 +265,26 @@ absl::Status Run(Flags flags) {
   Session& s = **session;
 
   const auto start = std::chrono::steady_clock::now();
+  std::vector<float> codes;  // (steps, 2): every step's (upper, lower) code, for --codes-out
+  auto step = [&]() -> absl::Status {
+    if (absl::Status st = s.Step(); !st.ok()) return st;
+    if (!flags.codes_out.empty()) {
+      codes.push_back(static_cast<float>(s.last_codes().first));
+      codes.push_back(static_cast<float>(s.last_codes().second));
+    }
+    return absl::OkStatus();
+  };
   const size_t stride = static_cast<size_t>(flags.chunk_samples) * audio->channels;
   for (size_t pos = 0; pos < audio->samples.size(); pos += stride) {
     const size_t n = std::min(stride, audio->samples.size() - pos);
     if (absl::Status st = s.PushAudio(absl::MakeConstSpan(audio->samples.data() + pos, n)); !st.ok()) return st;
     while (s.StepsReady() > 0) {
-      if (absl::Status st = s.Step(); !st.ok()) return st;
+      if (absl::Status st = step(); !st.ok()) return st;
     }
   }
   s.EndOfAudio();
   while (s.StepsReady() > 0) {
-    if (absl::Status st = s.Step(); !st.ok()) return st;
+    if (absl::Status st = step(); !st.ok()) return st;
   }
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   std::vector<PoseFrame> frames;
@@ -305,6 +320,10 @@ absl::Status Run(Flags flags) {
     if (absl::Status st = dance::client::WriteMotionFile(path, ClipOf((*model)->skeleton(), frames)); !st.ok()) {
       return st;
     }
+  }
+  if (!flags.codes_out.empty()) {
+    const int64_t steps = static_cast<int64_t>(codes.size() / 2);
+    if (absl::Status st = audio::WriteNpyFloat32(flags.codes_out, codes, steps, 2); !st.ok()) return st;
   }
   if (!flags.quiet) {
     nlohmann::json summary = {{"frames", frames.size()},

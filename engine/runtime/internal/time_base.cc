@@ -191,10 +191,14 @@ void TimeBase::EmitWarped(std::vector<PoseFrame>* out) {
   WarpState& warp = state_.warp;
   const int64_t decoded_end = warp.first_pose + static_cast<int64_t>(warp.poses.size());
   while (!warp.starts.empty() && (warp.output_limit < 0 || warp.next_output < warp.output_limit)) {
-    // Warped position of real frame m, held at the first decoded pose before the dance starts. The pair
+    // Warped position of real frame m, held at the first decoded pose (warped frame frames_per_step)
+    // before the dance starts: w = max(W_m, frames_per_step + 1) (docs/model.md section 1). The pair
     // (a, a + 1) with a < w <= a + 1 keeps frame m causal: pose a + 1 comes from a step that read warped
-    // music up to a < W_m, whose source frames are all < m.
-    const double w = std::max(warp.starts.front(), static_cast<double>(warp.first_pose) + 1.0);
+    // music up to a < W_m, whose source frames are all < m. (The bound is the stream's first pose, not the
+    // oldest pose kept: that one is the last frame's a, and a clock slower than one warped frame per real
+    // frame puts two real frames in one interval (a, a + 1], the second of which was snapped to a + 1.)
+    const double first_pose = static_cast<double>(model_->config().frames_per_step);
+    const double w = std::max(warp.starts.front(), first_pose + 1.0);
     const int64_t a = static_cast<int64_t>(std::ceil(w)) - 1;
     if (a + 1 >= decoded_end) break;  // its poses are not decoded yet
     const float frac = static_cast<float>(w - static_cast<double>(a));
