@@ -17,6 +17,7 @@ import { FrameTimer, RateMeter } from './stats.js';
 import { FileStreamer, MicStreamer, decodeSong } from './audio-input.js';
 import { fetchModel, fetchSessions, sessionLabel } from './sessions.js';
 import { BeatTracker } from './beat-tracker.js';
+import { AvatarView } from './avatar-view.js';
 
 const $ = (id) => document.getElementById(id);
 const params = new URLSearchParams(window.location.search);
@@ -38,6 +39,11 @@ let skeleton = new Skeleton();
 let dancer = new Dancer(skeleton);
 stage.add(dancer.group);
 dancer.showRestPose();
+// The body: capsules or a VRM avatar (avatar-view.js); ?avatar=vrm picks the VRM at load.
+const avatars = new AvatarView(stage, {
+  select: $('body-select'), fileInput: $('vrm-input'), skeleton: () => skeleton, onStatus: (t, s) => setStatus(t, s),
+});
+if (params.get('avatar') === 'vrm') avatars.choose('vrm');
 
 const frames = new FrameBuffer();
 const recorder = new Recorder();
@@ -153,6 +159,7 @@ function onInfo(info) {
     dancer.setMode(ui.drive.value);
     stage.add(dancer.group);
     dancer.showRestPose();
+    avatars.onSkeleton(skeleton);
   } else {
     skeleton = next;
   }
@@ -324,6 +331,7 @@ function tick(now) {
   if (!Number.isNaN(t)) {
     const pose = frames.sample(t);
     if (pose) dancer.setPose(pose.positions, pose.rotations);
+    if (pose) avatars.setPose(pose.positions, pose.rotations);
     while (beats.length && beats[0] <= t) {
       const b = beats.shift();
       if (t - b < 250) {  // a late beat is not a beat any more
@@ -334,7 +342,9 @@ function tick(now) {
       }
     }
   }
-  stage.follow(dancer.pelvis, dt);
+  avatars.update(dt);
+  dancer.group.visible = !avatars.active;
+  stage.follow(avatars.active ? avatars.pelvis : dancer.pelvis, dt);
   ui.beatDot.style.opacity = String(0.12 + 0.88 * stage.pulseLevel);
   ui.beatDot.style.transform = `scale(${0.7 + 0.5 * stage.pulseLevel})`;
   stage.render();
@@ -381,12 +391,14 @@ window.danceStats = () => ({
   trackerBpm: tracker ? tracker.bpm : null,
   style: ui.style.value,
   styles: Array.from(ui.style.options, (o) => o.value),
-  dancerBox: stage.projectBox(dancer.jointPoints()),
+  dancerBox: stage.projectBox(avatars.active ? avatars.jointPoints() : dancer.jointPoints()),
+  avatar: avatars.stats(),
   recorded: recorder.length,
   audioBytesSent: connection?.bytesSent ?? 0,
 });
 window.danceResetDisplayTimer = () => displayTimer.reset();
 window.danceRecorder = recorder;
+window.danceAvatars = avatars;
 
 fetchModel().then((model) => {
   setStyles(model.styles);
