@@ -1,10 +1,11 @@
 // The VRM avatar in the browser view, against a real dance-server (node --test; run by scripts/web-test.sh):
 // headless Chromium loads the page with ?avatar=vrm, the bundled avatar (web/public/avatars/aachan.vrm,
 // VRM 0.x) loads, a song file is performed and the avatar follows the stream: its bones change and its
-// region of the screen changes; the limb directions of the avatar's skinned (raw) bones match forward
-// kinematics of a streamed frame on the SMPL skeleton (so left/right, the VRM 0.x mirror and the rotation
-// convention are right); a .vrma written by `dance-generate --vrma` loads with @pixiv/three-vrm-animation
-// and, played on the avatar, gives every bone the rotation of the dance file at that time.
+// region of the screen changes; the avatar's skinned (raw) bones point along forward kinematics of the
+// streamed frames on the SMPL skeleton (so left/right, the VRM 0.x mirror, the rotation convention and the
+// rest-pose correction are right); the recorder's Save VRMA and a .vrma written by `dance-generate --vrma`
+// load with @pixiv/three-vrm-animation and, played on the avatar, give its bones the rotations of the
+// recording / the dance file at that time.
 //
 // DANCE_WEB_SCREENSHOTS=DIR saves web_vrm.png there.
 
@@ -151,6 +152,34 @@ test('the avatar\'s limbs point where the streamed frame\'s do', async () => {
       `(${JSON.stringify(worst.worstBySegment)})`);
   }
   console.log('avatar bone vs frame, worst deg:', JSON.stringify(worst.worstBySegment));
+});
+
+test('the recorder\'s Save VRMA plays back on the avatar with the recorded rotations', async () => {
+  const [download] = await Promise.all([page.waitForEvent('download'), page.click('#save-vrma')]);
+  assert.match(download.suggestedFilename(), /\.vrma$/);
+  const bytes = readFileSync(await download.path()).toString('base64');
+  const r = await page.evaluate(async (b64) => {
+    const buf = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0)).buffer;
+    const av = window.danceAvatars;
+    const motion = window.danceRecorder.toMotion();
+    const info = await av.playVrma(buf, 'recorded.vrma');
+    const names = motion.joint_names;
+    let worst = 0;
+    for (const frame of [0, 10, motion.rotations.length - 1]) {
+      av.avatar.seekVrma(frame / 30);
+      for (const [smpl, bone] of [['left_elbow', 'leftLowerArm'], ['right_hip', 'rightUpperLeg'], ['neck', 'neck']]) {
+        const q = motion.rotations[frame][names.indexOf(smpl)];
+        const got = av.avatar.boneRotation(bone);
+        worst = Math.max(worst, 1 - Math.abs(q[0] * got[3] + q[1] * got[0] + q[2] * got[1] + q[3] * got[2]));
+      }
+    }
+    av.stopVrma();
+    return { info, worst, frames: motion.rotations.length };
+  }, bytes);
+  assert.equal(r.info.tracks, 23);
+  assert.ok(Math.abs(r.info.duration - (r.frames - 1) / 30) < 1e-3, `duration ${r.info.duration}`);
+  assert.ok(r.worst < 1e-5, `bone rotations off the recording's by 1 - |dot| = ${r.worst}`);
+  assert.deepEqual(errors, []);
 });
 
 test('a .vrma from dance-generate plays on the avatar with the dance file\'s rotations', async (t) => {

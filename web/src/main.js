@@ -18,6 +18,7 @@ import { FileStreamer, MicStreamer, decodeSong } from './audio-input.js';
 import { fetchModel, fetchSessions, sessionLabel } from './sessions.js';
 import { BeatTracker } from './beat-tracker.js';
 import { AvatarView } from './avatar-view.js';
+import { downloadBytes, motionToVrma } from './vrma-export.js';
 
 const $ = (id) => document.getElementById(id);
 const params = new URLSearchParams(window.location.search);
@@ -318,6 +319,13 @@ ui.saveBvh.addEventListener('click', () => {
     setStatus(`BVH: ${err.message}`, 'error');
   }
 });
+$('save-vrma').addEventListener('click', () => {
+  try {
+    downloadBytes(motionToVrma(recorder.toMotion()), `dance-${stamp()}.vrma`, 'model/gltf-binary');
+  } catch (err) {
+    setStatus(`VRMA: ${err.message}`, 'error');
+  }
+});
 
 // ---- display loop -------------------------------------------------------------------------------------
 
@@ -364,6 +372,7 @@ function updatePanel(t) {
   ui.statUnderruns.textContent = String(frames.underruns);
   ui.recordCount.textContent = `${recorder.length} frames`;
   ui.saveJson.disabled = ui.saveBvh.disabled = recorder.length === 0;
+  $('save-vrma').disabled = recorder.length === 0;
   if (streamer instanceof MicStreamer) ui.micLevel.style.width = `${Math.min(100, streamer.level * 400)}%`;
 }
 
