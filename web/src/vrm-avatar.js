@@ -3,11 +3,15 @@
 // Each SMPL joint with a humanoid bone (kSmplToVrm, the same map as client/export/humanoid.h) sets the
 // local rotation of that bone of the avatar's *normalised* rig, whose rest pose is a T-pose with identity
 // local rotations facing +Z: the frame of docs/rotations.md. SMPL's rest pose is close to that T-pose but
-// not equal (its collar bones rise 22 degrees, its head leans forward...), so by default (retarget) every
-// bone gets a constant correction C_j, the shortest arc taking the avatar's rest bone (toward its aim
-// child, kAim) onto SMPL's: the avatar's global rotation is R_j = G_j C_j and its local one
-// L'_j = C_parent^-1 L_j C_j, which points every avatar bone exactly along the dance's bone (the twist about
-// it is the minimal one). retarget = false sends the rotations unchanged. VRM
+// not equal: its arms slope down 3-8 degrees and its legs stand 2-8 degrees apart, where the T-pose's are
+// level and straight. So by default (retarget) each limb bone (kAim) gets a constant correction C_j, the
+// shortest arc taking the avatar's rest bone onto SMPL's: the avatar's global rotation is R_j = G_j C_j and
+// its local one L'_j = C_parent^-1 L_j C_j, which points the avatar's arms and legs exactly along the
+// dance's (the twist about the bone is the minimal one). The spine, neck, head, collars and feet are left
+// as they are: there the rest poses differ by anatomy, not by pose (SMPL's head joint sits 30 degrees
+// forward of its neck, its collar bones rise 22 degrees to the shoulder joint, where a rig's neck and
+// shoulder bones are upright and level in the same upright, relaxed stance), and aiming them would bow
+// the avatar's head and shrug its shoulders. retarget = false sends every rotation unchanged. VRM
 // 0.x avatars are turned to face +Z by VRMUtils.rotateVRM0, so their normalised rig is mirrored in X and
 // Z: rotations (x, y, z, w) -> (-x, y, -z, w), positions (x, y, z) -> (-x, y, -z), as three-vrm-animation
 // does for .vrma. The hips move with the pelvis, scaled by the avatar's hips height over SMPL's.
@@ -28,13 +32,11 @@ import { kSmplToVrm } from './vrm-bones.js';
 
 export { kSmplToVrm };
 
-/** The bone each humanoid bone aims at (its child along the limb or spine), for the rest correction. */
+/** The limb bones the rest correction aims, each at its child. */
 const kAim = {
-  hips: 'spine', spine: 'chest', chest: 'upperChest', upperChest: 'neck', neck: 'head',
-  leftShoulder: 'leftUpperArm', leftUpperArm: 'leftLowerArm', leftLowerArm: 'leftHand',
-  rightShoulder: 'rightUpperArm', rightUpperArm: 'rightLowerArm', rightLowerArm: 'rightHand',
-  leftUpperLeg: 'leftLowerLeg', leftLowerLeg: 'leftFoot', leftFoot: 'leftToes',
-  rightUpperLeg: 'rightLowerLeg', rightLowerLeg: 'rightFoot', rightFoot: 'rightToes',
+  leftUpperArm: 'leftLowerArm', leftLowerArm: 'leftHand', rightUpperArm: 'rightLowerArm',
+  rightLowerArm: 'rightHand', leftUpperLeg: 'leftLowerLeg', leftLowerLeg: 'leftFoot',
+  rightUpperLeg: 'rightLowerLeg', rightLowerLeg: 'rightFoot',
 };
 
 function loader() {
