@@ -25,7 +25,8 @@
 // sampling.music_guidance; docs/model.md section 6). --codes-out CODES.npy: the code of every step, as sampled
 // (steps, 2) float32 (upper, lower), for comparing the engine's free-running draws with the PyTorch model's
 // (training.eval.engine_parity); the dance file's per-frame codes are those of the warped frames shown, which
-// can skip or repeat steps.
+// can skip or repeat steps. --tokens-out TOKENS.npy (tempo-normalised models): every step's music token as
+// the session read it, (steps, 4 x 108) float32 (the same comparison on the input side).
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -48,7 +49,7 @@ namespace {
 using namespace dance::engine;  // NOLINT: a tool's main
 
 struct Flags {
-  std::string audio, out, bvh, model, codes_out;
+  std::string audio, out, bvh, model, codes_out, tokens_out;
   std::string gltf, vrma;  // glTF 2.0 (.glb / .gltf) and VRM Animation outputs
   uint64_t seed = 0;
   std::string style;
@@ -62,7 +63,7 @@ constexpr char kUsage[] =
     "usage: dance-generate --audio FILE --out DANCE.json [--model M] [--seed S] [--style NAME[:W],...]\n"
     "                      [--temperature T] [--top-k K] [--top-p P] [--guidance W] [--music-guidance M] [--period-lock B]\n"
     "                      [--chunk-samples N] [--crouch-guard 0|1] [--foot-lock 0|1]\n"
-    "                      [--bvh DANCE.bvh] [--codes-out CODES.npy] [--quiet]\n"
+    "                      [--bvh DANCE.bvh] [--codes-out CODES.npy] [--tokens-out TOKENS.npy] [--quiet]\n"
     "                      [--seed-motion FILE] [--given-upper FILE] [--given-lower FILE] [--keyframes FILE]\n"
     "                      [--inpaint FILE --mask MASK.json] [--trajectory PATH.json]\n"
     "                      [--gltf DANCE.glb|.gltf] [--vrma DANCE.vrma]\n";
@@ -101,6 +102,8 @@ absl::Status ParseFlags(int argc, char** argv, Flags* f) {
       f->bvh = v;
     } else if (arg == "--codes-out") {
       f->codes_out = v;
+    } else if (arg == "--tokens-out") {
+      f->tokens_out = v;
     } else if (arg == "--gltf") {
       f->gltf = v;
     } else if (arg == "--vrma") {
@@ -265,12 +268,17 @@ absl::Status Run(Flags flags) {
   Session& s = **session;
 
   const auto start = std::chrono::steady_clock::now();
-  std::vector<float> codes;  // (steps, 2): every step's (upper, lower) code, for --codes-out
+  std::vector<float> codes;   // (steps, 2): every step's (upper, lower) code, for --codes-out
+  std::vector<float> tokens;  // (steps, 4F): every step's music token (tempo-normalised models), --tokens-out
   auto step = [&]() -> absl::Status {
     if (absl::Status st = s.Step(); !st.ok()) return st;
     if (!flags.codes_out.empty()) {
       codes.push_back(static_cast<float>(s.last_codes().first));
       codes.push_back(static_cast<float>(s.last_codes().second));
+    }
+    if (!flags.tokens_out.empty()) {
+      const std::vector<float>& t = s.last_warped_music_token();
+      tokens.insert(tokens.end(), t.begin(), t.end());
     }
     return absl::OkStatus();
   };
@@ -324,6 +332,14 @@ absl::Status Run(Flags flags) {
   if (!flags.codes_out.empty()) {
     const int64_t steps = static_cast<int64_t>(codes.size() / 2);
     if (absl::Status st = audio::WriteNpyFloat32(flags.codes_out, codes, steps, 2); !st.ok()) return st;
+  }
+  if (!flags.tokens_out.empty()) {
+    const int64_t width = static_cast<int64_t>((*model)->config().frames_per_step) * audio::kNumFeatures;
+    if (tokens.size() % width != 0 || tokens.empty()) {
+      return absl::InvalidArgumentError("--tokens-out: the model is not tempo-normalised (no warped tokens)");
+    }
+    const int64_t steps = static_cast<int64_t>(tokens.size()) / width;
+    if (absl::Status st = audio::WriteNpyFloat32(flags.tokens_out, tokens, steps, width); !st.ok()) return st;
   }
   if (!flags.quiet) {
     nlohmann::json summary = {{"frames", frames.size()},

@@ -67,6 +67,7 @@ def test_free_running_codes_equal_the_engines(song, model, tmp_path, features_cl
   ours = ep.torch_free_run(m, music, pre, meta["styles"].index("cha-cha"), seed=7, guidance=guidance,
                            music_guidance=music_guidance, steps=STEPS)
   theirs = ep.engine_codes(MODEL, song, "cha-cha", 7, tmp_path, guidance=guidance, music_guidance=music_guidance)
+  assert np.abs(ep.engine_tokens(tmp_path, "song", 7)[:STEPS] - music[:STEPS]).max() < 1e-6  # the same inputs
   row = ep.compare(ours, theirs[:STEPS])
   assert row["steps"] == STEPS
   assert row["first_diff"] == STEPS, row

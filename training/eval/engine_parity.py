@@ -15,11 +15,12 @@ its first step with the period lock and the crouch guard off (the two engine loc
   u = (gen() >> 11) 2^-53, the inverse CDF over the codes sorted by descending probability, upper then
   lower).
 - the engine: `dance-generate --codes-out` (every step's sampled codes).
-The report: per song the steps both took, the first step where a stream's code differs, and the share of
-equal codes. The two sides compute the logits in float32 in different orders (~1e-6 relative), so a draw
-that falls within that of a cumulative boundary picks the neighbouring code and the streams part from
-there on: a healthy engine matches for hundreds of steps (the first divergence is where a draw met a
-boundary, not a shared drift); a wrong input, lane, guidance or sampler parts within the first steps.
+The report: per song the steps both took, the first step where a stream's code differs, the share of
+equal codes, and the largest difference between the music tokens the two sides read. The two sides compute the logits in float32 in different orders (~1e-6 relative), so a draw
+that falls within that of a cumulative boundary picks the neighbouring code (or two codes whose
+probabilities tie within that rounding swap places in the walk) and the streams part from there on: a
+healthy engine matches for hundreds of steps (the first divergence is such a draw, not a shared drift);
+a wrong input, lane, guidance or sampler parts within the first steps.
 The output side: `retime_to_real` plays the PyTorch decode of the engine's codes back on the real timeline
 with the clock's starts (`clock_starts`, `dance-features --clock-starts`), as a session does; with the foot
 lock off it equals the engine's dance to float rounding (tests/training/test_engine_parity.py).
@@ -172,9 +173,11 @@ def engine_codes(model: str, audio: str, style: str | None, seed: int, workdir: 
                  guidance: float | None = None, music_guidance: float | None = None,
                  temperature: float = 1.0, name: str = "song") -> np.ndarray:
   """(steps, 2) codes of `dance-generate` on the song, period lock and crouch guard off; its files go to
-  workdir/{codes,dance}_<name>_s<seed>.*"""
+  workdir/{codes,tokens,dance}_<name>_s<seed>.* (tokens: every step's music token as the session read it,
+  `--tokens-out`; engine_tokens reads them)."""
   codes = workdir / f"codes_{name}_s{seed}.npy"
-  extra = ["--codes-out", codes, "--period-lock", 0, "--crouch-guard", 0, "--temperature", temperature]
+  extra = ["--codes-out", codes, "--tokens-out", workdir / f"tokens_{name}_s{seed}.npy", "--period-lock", 0,
+           "--crouch-guard", 0, "--temperature", temperature]
   if guidance is not None:
     extra += ["--guidance", guidance]
   if music_guidance is not None:
@@ -210,6 +213,11 @@ def retime_to_real(decoded: np.ndarray, starts: np.ndarray, first_index: int, fr
   return sk.project_bone_lengths(lin, skel)
 
 
+def engine_tokens(workdir: pathlib.Path, name: str, seed: int) -> np.ndarray:
+  """(steps, 4F) the music tokens the engine's session read in engine_codes' run of `name` and `seed`."""
+  return np.load(workdir / f"tokens_{name}_s{seed}.npy")
+
+
 def compare(a: np.ndarray, b: np.ndarray) -> dict:
   """First differing step per stream (the common length if none) and the share of equal codes."""
   n = min(len(a), len(b))
@@ -241,7 +249,10 @@ def parity(model_path: str, songs: list[str], seed: int, workdir: pathlib.Path, 
     theirs = engine_codes(model_path, audio, style, seed, workdir, guidance, music_guidance, temperature, mid)
     if steps is not None:
       theirs = theirs[:steps]
-    rows.append({"song": mid, "style": style, **compare(ours, theirs)})
+    tokens = engine_tokens(workdir, mid, seed)
+    n = min(len(tokens), len(music))
+    rows.append({"song": mid, "style": style, **compare(ours, theirs),
+                 "tokens_max_abs_diff": float(np.abs(tokens[:n] - music[:n]).max())})
   return rows
 
 
