@@ -17,6 +17,7 @@ measurement tools).
     librosa_compare  the engine's features against ground truth and librosa (scripts/reports/audio_report.py)
     pre_reference    batch PRE, the same numbers as the engine's incremental PRE
     engine_gap       the free-running screen against the engine, one difference at a time (start, time base, locks)
+    style_recognizer can the music alone tell the style, causally, within the first seconds? (LDA screen)
     tang_sides       which side of the Tang dancer is which: head, top line, hold and heel cues per take
     ablations.sh     the architecture ablations of the research log, each a fine-tune through training.train
 """
