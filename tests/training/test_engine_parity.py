@@ -7,7 +7,6 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
 from training import tools
 from training.data import skeleton as sk
@@ -54,8 +53,7 @@ def song(shared_data_dir):
 
 @pytest.fixture(scope="module")
 def model():
-  torch.set_grad_enabled(False)
-  m, _, meta = load_models(MODEL)
+  m, _, meta = load_models(MODEL)  # (torch_free_run and decode_codes run under no_grad: no global switch)
   return m, meta
 
 
