@@ -1,6 +1,8 @@
 // DanceServer: the whole service in one object: engine backend, the core's session hub (admission +
 // schedulers), and its two transports: the gRPC server (DanceService, health, reflection) and the
-// HTTP/WebSocket server. main.cc maps flags to DanceServerOptions; integration tests start one on port 0.
+// HTTP/WebSocket server; in a cluster (options.cluster) also the session registry and the services that
+// reach sessions on other servers. main.cc maps flags to DanceServerOptions; integration tests start one on
+// port 0.
 //
 // Usage:
 //   ASSIGN_OR_RETURN(auto backend, LoadEngineBackend("models/test-tiny.dncw"));
@@ -22,6 +24,8 @@
 #include "absl/status/statusor.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
+#include "server/cluster/cluster_service.h"
+#include "server/cluster/registry.h"
 #include "server/core/engine_port.h"
 #include "server/core/metrics.h"
 #include "server/core/session_hub.h"
@@ -44,6 +48,9 @@ struct DanceServerOptions {
   absl::Duration keepalive_timeout = absl::Seconds(10);
   std::string tls_cert_file;           // both set = TLS on the gRPC port
   std::string tls_key_file;
+  // cluster.store_address set = one of several servers: sessions registered in the store, Watch and
+  // ListSessions reach sessions on every server, /ws/watch relayed (docs/server.md, "Several servers").
+  ClusterOptions cluster;
 };
 
 class DanceServer {
@@ -56,6 +63,7 @@ class DanceServer {
   int http_port() const { return http_port_; }
   SessionHub& hub() { return *hub_; }
   ServerMetrics& metrics() { return metrics_; }
+  ClusterRegistry* registry() { return registry_.get(); }  // null unless options.cluster.store_address
 
   // Marks the server NOT_SERVING, refuses new sessions (UNAVAILABLE) and waits up to `timeout` for live
   // sessions to end. Returns true if all ended in time. Shutdown() afterwards ends the rest.
@@ -64,18 +72,22 @@ class DanceServer {
 
  private:
   DanceServer() = default;
-  void SetHealth(bool serving);
+  void SetHealth();
+  void HandleHttp(const HttpRequest& request, HttpConnection& connection);  // grpc.health.v1 for "" and dance.v1.DanceService from hub_->serving()
 
   DanceServerOptions options_;
   ServerMetrics metrics_;
   std::unique_ptr<EngineBackend> backend_;
   std::unique_ptr<SessionHub> hub_;
   std::unique_ptr<DanceServiceImpl> service_;
+  std::unique_ptr<ClusterRegistry> registry_;             // null unless options_.cluster.store_address
+  std::unique_ptr<ClusterDanceService> cluster_service_;  // wraps service_ when registry_ is set
   std::unique_ptr<WebHandler> web_;
   std::unique_ptr<grpc::Server> grpc_;
   std::unique_ptr<HttpServer> http_;
   int port_ = 0;
   int http_port_ = -1;
+  absl::Mutex health_mu_;
   absl::Mutex mu_;
   bool shut_down_ ABSL_GUARDED_BY(mu_) = false;
 };

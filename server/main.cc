@@ -61,6 +61,13 @@ ABSL_FLAG(std::string, tls_cert, "", "PEM certificate chain (with --tls-key: TLS
 ABSL_FLAG(std::string, tls_key, "", "PEM private key.");
 ABSL_FLAG(std::string, auth_token, "", "If set, clients must send 'authorization: Bearer <token>'.");
 ABSL_FLAG(std::string, log_level, "info", "debug, info, warning, error or off.");
+ABSL_FLAG(std::string, cluster_store, "",
+          "Redis host:port shared by several servers: sessions registered there, Watch and ListSessions reach "
+          "every server's sessions (empty = a single server).");
+ABSL_FLAG(std::string, advertise_host, "127.0.0.1", "With --cluster-store: the address peers reach this server at.");
+ABSL_FLAG(std::string, server_id, "", "With --cluster-store: this server's unique name (default: advertise host:port).");
+ABSL_FLAG(absl::Duration, cluster_ttl, absl::Seconds(5),
+          "With --cluster-store: a server's entries expire this long after its last heartbeat.");
 
 namespace {
 
@@ -69,7 +76,7 @@ constexpr const char* kFlagNames[] = {
     "max_viewers", "max_chunk_samples", "min_sample_rate", "max_sample_rate", "max_channels",
     "max_pending_seconds", "max_message_bytes", "performer_queue", "viewer_queue", "max_http_connections",
     "idle_timeout", "max_session", "stall_timeout", "keepalive_time", "keepalive_timeout", "drain_timeout", "tls_cert",
-    "tls_key", "auth_token", "log_level"};
+    "tls_key", "auth_token", "log_level", "cluster_store", "advertise_host", "server_id", "cluster_ttl"};
 
 // Applies DANCE_<NAME> environment variables as flag defaults (before the command line is parsed).
 bool ApplyEnvironment() {
@@ -192,6 +199,11 @@ int main(int argc, char** argv) {
   o.keepalive_timeout = absl::GetFlag(FLAGS_keepalive_timeout);
   o.tls_cert_file = absl::GetFlag(FLAGS_tls_cert);
   o.tls_key_file = absl::GetFlag(FLAGS_tls_key);
+  o.cluster.store_address = absl::GetFlag(FLAGS_cluster_store);
+  o.cluster.advertise_host = absl::GetFlag(FLAGS_advertise_host);
+  o.cluster.server_id = absl::GetFlag(FLAGS_server_id);
+  o.cluster.ttl = absl::GetFlag(FLAGS_cluster_ttl);
+  o.cluster.heartbeat = std::max(absl::Milliseconds(100), o.cluster.ttl / 5);
 
   auto server = dance::server::DanceServer::Start(*std::move(backend), o);
   if (!server.ok()) {
