@@ -20,6 +20,9 @@ PACKAGES=(
   python3-torch libopenblas0-pthread python3-tqdm python3-grpcio python3-protobuf python3-mido
   # Audio tools and real music.
   sox libsox-fmt-all fretsonfire-songs-sectoid fretsonfire-songs-muldjord
+  # Several servers (docs/server.md, "Several servers"): the session registry's client library, and the
+  # store, proxy and YAML reader the cluster tests and scripts/cluster*.sh run.
+  libhiredis-dev redis-server haproxy python3-yaml
   # Browser tests (Node.js >= 20.19 is checked below: Debian 12's nodejs is 18, too old for vite 7).
   chromium
 )
