@@ -68,6 +68,17 @@ ABSL_FLAG(bool, quiet, false, "Less progress output.");
 ABSL_FLAG(std::string, vmc, "", "Send the dance over the VMC protocol (OSC/UDP) to HOST[:PORT] (default port 39539).");
 ABSL_FLAG(double, vmc_fps, 60.0, "VMC send rate: interpolated to this many poses/s; 0 = the stream's rate.");
 ABSL_FLAG(bool, vmc_bundle, true, "VMC: one OSC bundle per pose (false: one message per datagram).");
+ABSL_FLAG(std::string, seed_motion, "", "perform: start the dance from this clip (dance-motion/v1 JSON or BVH).");
+ABSL_FLAG(std::string, given_upper, "", "perform: the upper body exactly as in this file; the legs danced.");
+ABSL_FLAG(std::string, given_lower, "", "perform: the lower body (and root) exactly as in this file.");
+ABSL_FLAG(std::string, keyframes, "", "perform: key poses to hit (dance-motion/v1 with \"times_s\").");
+ABSL_FLAG(std::string, inpaint, "", "perform: a recorded dance to re-dance where --mask does not keep it.");
+ABSL_FLAG(std::string, mask, "", "perform: the dance-mask/v1 of --inpaint.");
+ABSL_FLAG(std::string, trajectory, "", "perform: a floor path to follow (dance-trajectory/v1).");
+ABSL_FLAG(std::vector<std::string>, steer, {},
+          "perform: AT:T:X:Z,... once the audio reaches AT s, be at (X, Z) m at T s (Control.steer).");
+ABSL_FLAG(std::vector<std::string>, handover, {},
+          "perform: AT:FILE,... once the audio reaches AT s, go on from the clip FILE (a seed mid-stream).");
 ABSL_FLAG(std::string, in, "", "play: a dance-motion/v1 JSON file.");
 
 namespace {
@@ -152,6 +163,27 @@ int Perform() {
   }
   po.header.set_raw_feet(absl::GetFlag(FLAGS_raw_feet));
   ParseStyle(absl::GetFlag(FLAGS_style), &po.header);
+  dance::client::ControlFiles files{absl::GetFlag(FLAGS_seed_motion), absl::GetFlag(FLAGS_given_upper),
+                                    absl::GetFlag(FLAGS_given_lower),  absl::GetFlag(FLAGS_keyframes),
+                                    absl::GetFlag(FLAGS_inpaint),      absl::GetFlag(FLAGS_mask),
+                                    absl::GetFlag(FLAGS_trajectory)};
+  if (!files.empty()) {
+    auto controls = dance::client::ControlsFromFiles(files);
+    if (!controls.ok()) return Fail(controls.status());
+    *po.header.mutable_controls() = *std::move(controls);
+  }
+  for (const std::string& s : absl::GetFlag(FLAGS_steer)) {
+    auto t = dance::client::ParseSteerFlag(s);
+    if (!t.ok()) return Fail(t.status());
+    po.controls.push_back(*std::move(t));
+  }
+  for (const std::string& s : absl::GetFlag(FLAGS_handover)) {
+    auto t = dance::client::ParseHandoverFlag(s);
+    if (!t.ok()) return Fail(t.status());
+    po.controls.push_back(*std::move(t));
+  }
+  std::stable_sort(po.controls.begin(), po.controls.end(),
+                   [](const auto& a, const auto& b) { return a.at_s < b.at_s; });
   const int64_t total_frames = source->Total();
   const int rate = source->sample_rate();
   PerformStream stream(stub.get(), std::move(source), po);
@@ -202,6 +234,12 @@ int Perform() {
     if (!vmc_status.ok()) std::cerr << "dance-client: VMC: " << vmc_status << "\n";
   }
   if (!absl::GetFlag(FLAGS_quiet)) std::cerr << "\n";
+  for (const dance::v1::Event& e : stream.events()) {
+    // A refused control or pose, a pose input that stopped: said, not lost.
+    if (e.kind() == dance::v1::Event::KIND_WARNING) {
+      std::cerr << absl::StrFormat("dance-client: server warning at %.2f s: %s\n", e.time_ms() / 1000.0, e.message());
+    }
+  }
   if (!st.ok()) return Fail(st);
   const auto& fs = stream.stats();
   std::vector<float> lat = fs.latency_ms;

@@ -39,8 +39,8 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
-#include "client/export/gltf_writer.h"
 #include "engine/audio/npy_writer.h"
+#include "client/export/gltf_writer.h"
 #include "engine/engine.h"
 #include "nlohmann/json.hpp"
 
@@ -100,14 +100,14 @@ absl::Status ParseFlags(int argc, char** argv, Flags* f) {
       f->out = v;
     } else if (arg == "--bvh") {
       f->bvh = v;
-    } else if (arg == "--codes-out") {
-      f->codes_out = v;
-    } else if (arg == "--tokens-out") {
-      f->tokens_out = v;
     } else if (arg == "--gltf") {
       f->gltf = v;
     } else if (arg == "--vrma") {
       f->vrma = v;
+    } else if (arg == "--codes-out") {
+      f->codes_out = v;
+    } else if (arg == "--tokens-out") {
+      f->tokens_out = v;
     } else if (arg == "--model") {
       f->model = v;
     } else if (arg == "--style") {
@@ -174,65 +174,36 @@ absl::StatusOr<std::vector<std::pair<std::string, float>>> ParseStyle(const std:
 }
 
 // The controls the flags name, combined into one Controls (`names` lists them for the dance file).
-absl::StatusOr<Controls> BuildControls(const Flags& f, double duration_s, std::vector<std::string>* names) {
-  Controls c;
-  // Every motion file must start within the song (ValidateControls bounds how long a track may be).
-  const int64_t song_frames = static_cast<int64_t>(std::ceil(duration_s * 30.0));
-  auto with = [&](const std::string& path, const char* name) -> absl::StatusOr<MotionFile> {
-    names->push_back(name);
-    absl::StatusOr<MotionFile> m = ReadMotionFile(path);
-    if (!m.ok()) return m.status();
-    const int64_t first = m->times_s.empty() ? m->first_frame : std::lround(m->times_s.front() * 30.0);
-    if (first >= song_frames) {
-      return absl::InvalidArgumentError(absl::StrCat("'", path, "': the motion starts at ", first / 30.0,
-                                                     " s, past the song's ", duration_s, " s"));
-    }
-    return m;
+absl::StatusOr<Controls> BuildControlsFromFlags(const Flags& f, double duration_s, std::vector<std::string>* names) {
+  ControlSpec spec;
+  auto read = [](const std::string& path, MotionSource* m) -> absl::Status {
+    if (path.empty()) return absl::OkStatus();
+    absl::StatusOr<std::string> text = ReadTextFile(path);
+    if (!text.ok()) return text.status();
+    m->name = path;
+    m->text = *std::move(text);
+    return absl::OkStatus();
   };
-  if (!f.inpaint.empty()) {
-    absl::StatusOr<MotionFile> dance = with(f.inpaint, "inpaint");
-    if (!dance.ok()) return dance.status();
-    absl::StatusOr<std::vector<JointMask>> mask = ReadMaskFile(f.mask, *dance);
-    if (!mask.ok()) return mask.status();
-    c.motion = CombineTracks(c.motion, MaskedTrack(dance->positions, dance->first_frame, *mask));
+  for (const auto& [path, m] : {std::pair{&f.inpaint, &spec.inpaint}, std::pair{&f.given_upper, &spec.given_upper},
+                                std::pair{&f.given_lower, &spec.given_lower}, std::pair{&f.seed_motion, &spec.seed},
+                                std::pair{&f.keyframes, &spec.keyframes}}) {
+    if (absl::Status s = read(*path, m); !s.ok()) return s;
   }
-  for (const auto& [path, upper] : {std::pair{f.given_upper, true}, std::pair{f.given_lower, false}}) {
-    if (path.empty()) continue;
-    absl::StatusOr<MotionFile> m = with(path, upper ? "given_upper" : "given_lower");
-    if (!m.ok()) return m.status();
-    c.motion = CombineTracks(c.motion, GivenHalfTrack(m->positions, m->first_frame, upper));
-  }
-  if (!f.seed_motion.empty()) {
-    absl::StatusOr<MotionFile> m = with(f.seed_motion, "seed_motion");
-    if (!m.ok()) return m.status();
-    if (m->positions.size() < 4) {
-      return absl::InvalidArgumentError(absl::StrCat("'", f.seed_motion, "': a seed clip needs >= 4 frames"));
-    }
-    c.motion = CombineTracks(c.motion, SeedTrack(m->positions, m->first_frame));
-  }
-  if (!f.keyframes.empty()) {
-    absl::StatusOr<MotionFile> m = with(f.keyframes, "keyframes");
-    if (!m.ok()) return m.status();
-    if (m->times_s.empty()) {
-      return absl::InvalidArgumentError(absl::StrCat("'", f.keyframes, "': keyframes need \"times_s\""));
-    }
-    std::vector<int64_t> frames;
-    for (double t : m->times_s) frames.push_back(std::lround(t * 30.0));
-    absl::StatusOr<MotionTrack> keys = KeyframeTrack(m->positions, frames);
-    if (!keys.ok()) return absl::InvalidArgumentError(absl::StrCat("'", f.keyframes, "': ", keys.status().message()));
-    c.motion = CombineTracks(c.motion, *keys);
+  if (!f.mask.empty()) {
+    // The mask's spans are checked against the dance when the controls are built.
+    absl::StatusOr<std::string> text = ReadTextFile(f.mask);
+    if (!text.ok()) return text.status();
+    absl::StatusOr<std::vector<MaskSpan>> spans = ParseMaskSpansJson(*text, f.mask);
+    if (!spans.ok()) return spans.status();
+    spec.inpaint_known = *std::move(spans);
+    spec.mask_name = f.mask;
   }
   if (!f.trajectory.empty()) {
-    names->push_back("trajectory");
     absl::StatusOr<std::vector<TrajectoryPoint>> path = ReadTrajectoryFile(f.trajectory);
     if (!path.ok()) return path.status();
-    if (path->back().t_s > duration_s + 1.0) {
-      return absl::InvalidArgumentError(absl::StrCat("'", f.trajectory, "': the path runs to ", path->back().t_s,
-                                                     " s, past the song's ", duration_s, " s"));
-    }
-    c.trajectory = *path;
+    spec.trajectory = *std::move(path);
   }
-  return c;
+  return BuildControls(spec, {.duration_s = duration_s}, names);
 }
 
 constexpr char kDefaultModel[] = "models/default.dncw";
@@ -260,7 +231,7 @@ absl::Status Run(Flags flags) {
   if (!style.ok()) return style.status();
   options.style = *style;
   std::vector<std::string> control_names;
-  absl::StatusOr<Controls> controls = BuildControls(flags, audio->duration_s(), &control_names);
+  absl::StatusOr<Controls> controls = BuildControlsFromFlags(flags, audio->duration_s(), &control_names);
   if (!controls.ok()) return controls.status();
   options.controls = *std::move(controls);
   absl::StatusOr<std::unique_ptr<Session>> session = Session::Create(*model, options);

@@ -56,13 +56,15 @@ export class Connection {
 
   /**
    * Starts a session of our own; resolves with the info message.
-   * @param {{sampleRate: number, style?: Array, temperature?: number, seed?: number}} opts
+   * @param {{sampleRate: number, style?: Array, temperature?: number, seed?: number, controls?: object}} opts
+   *   controls: StreamHeader.controls in JSON (docs/protocol.md): trajectory, seed, keyframes, ...
    */
-  perform({ sampleRate, style = [], temperature, seed }) {
+  perform({ sampleRate, style = [], temperature, seed, controls }) {
     this.mode = 'perform';
     const start = { type: 'start', sample_rate: sampleRate, channels: 1, style, client_name: 'browser' };
     if (temperature !== undefined) start.temperature = temperature;
     if (seed !== undefined) start.seed = seed;
+    if (controls !== undefined) start.controls = controls;
     return this._open(wsUrl('ws/perform'), start);
   }
 
@@ -126,7 +128,7 @@ export class Connection {
     return true;
   }
 
-  /** Changes the live session: {style?: Array, temperature?: number}. */
+  /** Changes the live session: {style?: Array, temperature?: number, steer?: object, controls?: object}. */
   control(change) {
     if (!this.open) return false;
     this.ws.send(JSON.stringify({ type: 'control', ...change }));

@@ -19,6 +19,7 @@ import { fetchModel, fetchSessions, sessionLabel } from './sessions.js';
 import { BeatTracker } from './beat-tracker.js';
 import { AvatarView } from './avatar-view.js';
 import { downloadBytes, motionToVrma } from './vrma-export.js';
+import { Directions } from './directions.js';
 
 const $ = (id) => document.getElementById(id);
 const params = new URLSearchParams(window.location.search);
@@ -45,6 +46,11 @@ const avatars = new AvatarView(stage, {
   select: $('body-select'), fileInput: $('vrm-input'), skeleton: () => skeleton, onStatus: (t, s) => setStatus(t, s),
 });
 if (params.get('avatar') === 'vrm') avatars.choose('vrm');
+// A floor path, a seed clip and keyframes for the next song; clicks that steer the dancer during one.
+const directions = new Directions(stage, {
+  draw: $('path-btn'), clear: $('path-clear'), speed: $('path-speed'), speedValue: $('path-speed-value'),
+  seed: $('seed-input'), keys: $('keys-input'), summary: $('directions-summary'),
+}, { onSteer: (steer) => sendControl({ steer }) });
 
 const frames = new FrameBuffer();
 const recorder = new Recorder();
@@ -100,6 +106,7 @@ function newConnection() {
         lastFrameAt = now;
         clock?.onFrame(msg.time_ms);
         recorder.push(msg);
+        directions.noteFrame(msg);
         ui.hint.textContent = '';
       }
     },
@@ -114,7 +121,10 @@ function newConnection() {
       lastEvent = msg;
       if (msg.kind === 'control_applied') ++controlsApplied;
       if (msg.kind === 'control_applied') setStatus(`applied at frame ${msg.frame_index}`, 'live');
-      else if (msg.kind === 'warning') console.info('server warning:', msg.message);
+      else if (msg.kind === 'warning') {
+        console.info('server warning:', msg.message);
+        setStatus(`server: ${msg.message}`, 'warning');
+      }
     },
     onEnd: (msg) => {
       if (c === connection) setStatus(`ended: ${msg.reason || 'done'}, ${msg.frames ?? '?'} frames`);
@@ -189,11 +199,13 @@ function stopAll() {
   connection = null;
   clock = null;
   mode = 'idle';
+  directions.setPerforming(false);
   ui.stop.disabled = true;
 }
 
 function currentSettings() {
-  return { style: styleMix(ui.style.value), temperature: Number(ui.temperature.value) };
+  return { style: styleMix(ui.style.value), temperature: Number(ui.temperature.value),
+    controls: directions.startControls() };
 }
 
 // ---- the three ways in --------------------------------------------------------------------------------
@@ -209,6 +221,7 @@ async function playFile(file) {
     enableControls(true);
     setStatus('connecting...');
     const info = await c.perform({ sampleRate: 24000, ...currentSettings() });
+    directions.setPerforming(true);
     streamer = new FileStreamer(ctx, song);
     streamer.onChunk = trackBeats(24000);
     const delayS = (Number(info.latency_ms) || 0) / 1000 + Number(ui.jitter.value) / 1000;
@@ -233,6 +246,7 @@ async function useMicrophone() {
     streamer = mic;
     clock = new ArrivalPlayoutClock({ bufferMs: kStepMs + Number(ui.jitter.value) / 2 });
     await c.perform({ sampleRate: mic.sampleRate, ...currentSettings() });
+    directions.setPerforming(true);
     mic.onChunk = trackBeats(mic.sampleRate);
     mic.start(c);
     ui.micMeter.hidden = false;
@@ -286,9 +300,12 @@ ui.watch.addEventListener('click', () => watchSession(ui.sessions.value));
 ui.drive.addEventListener('change', () => dancer.setMode(ui.drive.value));
 ui.jitter.addEventListener('input', () => { ui.jitterValue.textContent = ui.jitter.value; });
 
+/** Sends a live change; true if it went out (a connection is open). */
 function sendControl(change) {
   lastControl = change;
-  if (connection?.control(change)) setStatus(`sent ${Object.keys(change).join(', ')}`, 'live');
+  const sent = Boolean(connection?.control(change));
+  if (sent) setStatus(`sent ${Object.keys(change).join(', ')}`, 'live');
+  return sent;
 }
 ui.style.addEventListener('change', () => sendControl({ style: styleMix(ui.style.value) }));
 ui.temperature.addEventListener('input', () => {
@@ -404,10 +421,16 @@ window.danceStats = () => ({
   avatar: avatars.stats(),
   recorded: recorder.length,
   audioBytesSent: connection?.bytesSent ?? 0,
+  directions: {
+    path: directions.pathPoints(), steersSent: directions.steersSent, mode: directions.mode,
+    seed: directions.seed?.name ?? null, keys: directions.keys?.name ?? null,
+    dancer: directions.lastFrame,
+  },
 });
 window.danceResetDisplayTimer = () => displayTimer.reset();
 window.danceRecorder = recorder;
 window.danceAvatars = avatars;
+window.danceDirections = directions;
 
 fetchModel().then((model) => {
   setStyles(model.styles);
