@@ -2,6 +2,7 @@
 // core's request types, and core updates encoded as the documented text messages (docs/protocol.md).
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
@@ -159,6 +160,97 @@ TEST(JsonCodec, OtherUpdatesAsDocumented) {
             R"("rest_offsets":[0.0,0.5,0.0],"session_id":"s-1","styles":["breaking","popping"],"type":"info"})");
   EXPECT_EQ(ErrorToJson(absl::InvalidArgumentError("bad")),
             R"({"code":"INVALID_ARGUMENT","message":"bad","type":"error"})");
+}
+
+TEST(JsonCodec, ControlsInTheDocumentedForm) {
+  const nlohmann::json j = nlohmann::json::parse(R"({
+    "seed": {"file": "HIERARCHY ...", "start_ms": 500},
+    "keyframes": {"positions": [0.5, 1, 2], "times_ms": [1000, 3000]},
+    "inpaint_known": [{"start_ms": 0, "end_ms": 4000, "joints": ["upper", "head"]}],
+    "trajectory": [{"t_ms": 500, "x": 0.0, "z": 0.0}, {"t_ms": 2500, "x": 1.5, "z": -0.5, "facing": 1.57}]})");
+  absl::StatusOr<ControlSpec> c = ControlsFromJson(j);
+  ASSERT_TRUE(c.ok()) << c.status();
+  EXPECT_EQ(c->seed.file, "HIERARCHY ...");
+  EXPECT_DOUBLE_EQ(c->seed.start_s, 0.5);
+  EXPECT_EQ(c->keyframes.positions, (std::vector<float>{0.5f, 1.0f, 2.0f}));
+  EXPECT_EQ(c->keyframes.times_s, (std::vector<double>{1.0, 3.0}));
+  EXPECT_TRUE(c->given_upper.empty());
+  EXPECT_TRUE(c->inpaint.empty());
+  ASSERT_EQ(c->inpaint_known.size(), 1u);
+  EXPECT_DOUBLE_EQ(c->inpaint_known[0].end_s, 4.0);
+  EXPECT_EQ(c->inpaint_known[0].joints, (std::vector<std::string>{"upper", "head"}));
+  ASSERT_EQ(c->trajectory.size(), 2u);
+  EXPECT_DOUBLE_EQ(c->trajectory[1].t_s, 2.5);
+  EXPECT_FLOAT_EQ(c->trajectory[1].x, 1.5f);
+  EXPECT_FLOAT_EQ(c->trajectory[1].z, -0.5f);
+  EXPECT_FALSE(c->trajectory[0].facing.has_value());
+  ASSERT_TRUE(c->trajectory[1].facing.has_value());
+  EXPECT_FLOAT_EQ(*c->trajectory[1].facing, 1.57f);
+  absl::StatusOr<ControlSpec> none = ControlsFromJson(nlohmann::json::object());
+  ASSERT_TRUE(none.ok());
+  EXPECT_TRUE(none->empty());
+}
+
+TEST(JsonCodec, BadControlsNameTheKey) {
+  const auto error = [](const char* text) {
+    absl::StatusOr<ControlSpec> c = ControlsFromJson(nlohmann::json::parse(text));
+    EXPECT_EQ(c.status().code(), absl::StatusCode::kInvalidArgument) << text;
+    return std::string(c.status().message());
+  };
+  EXPECT_EQ(error("[]"), "controls must be an object");
+  EXPECT_EQ(error(R"({"seed": 3})"), "controls.seed must be an object");
+  EXPECT_EQ(error(R"({"given_upper": {"positions": [1, "x"]}})"), "controls.given_upper.positions must be a list of numbers");
+  EXPECT_EQ(error(R"({"keyframes": {"file": 7}})"), "controls.keyframes.file must be the file's text");
+  EXPECT_EQ(error(R"({"trajectory": [{"t_ms": 0, "x": 1}]})"), "controls.trajectory point needs t_ms, x and z");
+  EXPECT_EQ(error(R"({"inpaint_known": [{"start_ms": 0}]})"),
+            "controls.inpaint_known entries need start_ms, end_ms and joints");
+  EXPECT_EQ(error(R"({"inpaint_known": [{"start_ms": 0, "end_ms": 1, "joints": [3]}]})"),
+            "controls.inpaint_known: joints are names");
+}
+
+TEST(JsonCodec, SteerPointOrVelocity) {
+  absl::StatusOr<SteerTarget> p =
+      SteerFromJson(nlohmann::json::parse(R"({"point": {"t_ms": 9000, "x": 0.6, "z": 2.0}})"));
+  ASSERT_TRUE(p.ok()) << p.status();
+  EXPECT_EQ(p->kind, SteerTarget::Kind::kPoint);
+  EXPECT_DOUBLE_EQ(p->t_s, 9.0);
+  EXPECT_FLOAT_EQ(p->z, 2.0f);
+  absl::StatusOr<SteerTarget> v =
+      SteerFromJson(nlohmann::json::parse(R"({"velocity": {"x": 0.3, "z": 0, "facing": 1.5, "hold_ms": 2500}})"));
+  ASSERT_TRUE(v.ok()) << v.status();
+  EXPECT_EQ(v->kind, SteerTarget::Kind::kVelocity);
+  EXPECT_FLOAT_EQ(v->x, 0.3f);
+  EXPECT_DOUBLE_EQ(v->hold_s, 2.5);
+  ASSERT_TRUE(v->facing.has_value());
+  absl::StatusOr<SteerTarget> held = SteerFromJson(nlohmann::json::parse(R"({"velocity": {"x": 0, "z": 0}})"));
+  ASSERT_TRUE(held.ok());
+  EXPECT_DOUBLE_EQ(held->hold_s, 1.0);  // hold_ms absent: one second
+  EXPECT_EQ(SteerFromJson(nlohmann::json::parse(R"({"velocity": 3})")).status().message(),
+            "steer needs a point {t_ms, x, z} or a velocity {x, z}");
+  EXPECT_EQ(SteerFromJson(nlohmann::json::parse(R"({"point": {"x": 1}})")).status().message(),
+            "steer.point needs t_ms, x and z");
+}
+
+TEST(JsonCodec, PosesInTheDocumentedForm) {
+  nlohmann::json j = {{"type", "poses"}, {"poses", nlohmann::json::array()}};
+  std::vector<float> positions(72);
+  for (size_t i = 0; i < positions.size(); ++i) positions[i] = 0.01f * static_cast<float>(i);
+  j["poses"].push_back({{"time_ms", 1000}, {"positions", positions}, {"part", "upper"}});
+  j["poses"].push_back({{"time_ms", 1033.3}, {"positions", positions}, {"part", "lower"}});
+  j["poses"].push_back({{"time_ms", 1066.7}, {"positions", positions}, {"part", "all"}});
+  j["poses"].push_back({{"time_ms", 1100}, {"positions", positions}, {"part", "legs"}});
+  absl::StatusOr<std::vector<PoseRequest>> p = PosesFromJson(j);
+  ASSERT_TRUE(p.ok()) << p.status();
+  ASSERT_EQ(p->size(), 4u);
+  EXPECT_DOUBLE_EQ((*p)[0].time_ms, 1000.0);
+  EXPECT_EQ((*p)[0].positions, positions);
+  EXPECT_EQ((*p)[0].part, BodyPart::kUpper);
+  EXPECT_EQ((*p)[1].part, BodyPart::kLower);
+  EXPECT_EQ((*p)[2].part, BodyPart::kAll);
+  EXPECT_EQ((*p)[3].part, BodyPart::kUnspecified);  // left to ValidatePose, which names it
+  EXPECT_EQ(PosesFromJson(nlohmann::json::parse(R"({"type": "poses"})")).status().message(), "poses must be a list");
+  EXPECT_EQ(PosesFromJson(nlohmann::json::parse(R"({"poses": [{"time_ms": 0, "positions": [null]}]})")).status().message(),
+            "poses: positions must be numbers");
 }
 
 }  // namespace
