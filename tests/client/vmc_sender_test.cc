@@ -5,6 +5,8 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <map>
 #include <string>
 #include <thread>
@@ -37,6 +39,14 @@ struct Received {
 };
 
 // A liblo receiver on an OS-chosen port (lo_server_new(NULL, ...)), pumped by the test's thread.
+// liblo's argument pointers point into the packet and need not be aligned for lo_arg: read by copy.
+template <class T>
+T ArgAs(const lo_arg* a) {
+  T v;
+  std::memcpy(&v, a, sizeof v);
+  return v;
+}
+
 class Receiver {
  public:
   Receiver() {
@@ -67,26 +77,26 @@ class Receiver {
     const std::string p = path, t = types;
     if (p == "/VMC/Ext/OK") {
       r->poses_.emplace_back();  // OK opens a pose
-      for (int i = 0; i < argc; ++i) r->poses_.back().ok_args.push_back(t[i] == 'i' ? argv[i]->i : -1);
+      for (int i = 0; i < argc; ++i) r->poses_.back().ok_args.push_back(t[i] == 'i' ? ArgAs<int32_t>(argv[i]) : -1);
     }
     if (r->poses_.empty()) return 0;
     Received& cur = r->poses_.back();
     cur.paths.push_back(p);
     if (p == "/VMC/Ext/T") {
       if (t != "f") cur.bad_types = p + " " + t;
-      cur.time = argv[0]->f;
+      cur.time = ArgAs<float>(argv[0]);
     } else if (p == "/VMC/Ext/Root/Pos" || p == "/VMC/Ext/Bone/Pos") {
       if (t != "sfffffff") {
         cur.bad_types = p + " " + t;
         return 0;
       }
       std::array<float, 7> v;
-      for (int i = 0; i < 7; ++i) v[i] = argv[1 + i]->f;
+      for (int i = 0; i < 7; ++i) v[i] = ArgAs<float>(argv[1 + i]);
       if (p == "/VMC/Ext/Root/Pos") {
-        cur.root_name = &argv[0]->s;
+        cur.root_name = reinterpret_cast<const char*>(argv[0]);
         cur.root = v;
       } else {
-        cur.bones[&argv[0]->s] = BonePose{{v[0], v[1], v[2]}, {v[3], v[4], v[5], v[6]}};
+        cur.bones[reinterpret_cast<const char*>(argv[0])] = BonePose{{v[0], v[1], v[2]}, {v[3], v[4], v[5], v[6]}};
       }
     }
     return 0;
