@@ -153,6 +153,7 @@ export class VrmAvatar {
     const clip = createVRMAnimationClip(animation, this.vrm);
     this.mixer = new THREE.AnimationMixer(this.vrm.scene);
     this.mixer.clipAction(clip).play();
+    this.vrmaDuration = clip.duration;
     return { duration: clip.duration, tracks: clip.tracks.length };
   }
 
@@ -162,9 +163,12 @@ export class VrmAvatar {
     this.mixer = null;
   }
 
-  /** Seeks a playing .vrma to `seconds` (for tests and scrubbing). */
+  /** Seeks a playing .vrma to `seconds` (for tests and scrubbing), clamped to the clip. */
   seekVrma(seconds) {
-    this.mixer?.setTime(seconds);
+    // The loop wraps at the clip's duration (a float32 keyframe time): seeking to the last frame's time in
+    // double precision can land on or past it and show frame 0, so the end is held a microsecond early.
+    const end = this.vrmaDuration ?? 0;
+    this.mixer?.setTime(Math.max(0, Math.min(seconds, end - 1e-6)));
     this.vrm.update(0);
     this.hips.getWorldPosition(this.pelvis);
   }
