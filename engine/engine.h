@@ -16,6 +16,8 @@
 //   - PoseFrame (runtime/pose_frame.h): one emitted frame (positions, rotations, codes).
 //   - WriteDanceJson, WriteBvh (runtime/dance_writer.h): whole-dance files.
 //   - audio::DecodeAudioFile (audio/decoder.h): audio files to PCM.
+//   - SgmdModel, GenerateSgmdDance (diffusion/): the motion-diffusion editor, a whole dance at once
+//     (docs/diffusion.md).
 //
 // Usage:
 //   #include "engine/engine.h"
@@ -32,6 +34,8 @@
 #define DANCE_ENGINE_ENGINE_H_
 
 #include "engine/audio/decoder.h"
+#include "engine/diffusion/sgmd_dance.h"
+#include "engine/diffusion/sgmd_model.h"
 #include "engine/nn/sampling.h"
 #include "engine/runtime/control_spec.h"
 #include "engine/runtime/controls.h"

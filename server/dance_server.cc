@@ -31,7 +31,8 @@ absl::StatusOr<std::unique_ptr<DanceServer>> DanceServer::Start(std::unique_ptr<
   DanceServerOptions& o = s->options_;
   s->backend_ = std::move(backend);
   s->hub_ = std::make_unique<SessionHub>(s->backend_.get(), o.hub, &s->metrics_);
-  s->service_ = std::make_unique<DanceServiceImpl>(s->hub_.get(), &s->metrics_, o.service);
+  if (o.editor != nullptr) s->edit_jobs_ = std::make_unique<EditJobs>(o.editor.get(), o.edit);
+  s->service_ = std::make_unique<DanceServiceImpl>(s->hub_.get(), &s->metrics_, o.service, s->edit_jobs_.get());
   grpc::Service* service = s->service_.get();
   if (!o.cluster.store_address.empty()) {
     SessionHub* hub = s->hub_.get();
@@ -83,7 +84,7 @@ absl::StatusOr<std::unique_ptr<DanceServer>> DanceServer::Start(std::unique_ptr<
     o.web.limits = o.service.limits;
     o.web.viewer_queue_frames = o.service.viewer_queue_frames;
     o.web.performer_queue_limit = o.service.performer_queue_limit;
-    s->web_ = std::make_unique<WebHandler>(s->hub_.get(), &s->metrics_, o.web);
+    s->web_ = std::make_unique<WebHandler>(s->hub_.get(), &s->metrics_, o.web, s->edit_jobs_.get());
     s->http_ = std::make_unique<HttpServer>(
         HttpServerOptions{.bind_address = o.host, .port = o.http_port, .max_connections = o.max_http_connections},
         [raw](const HttpRequest& r, HttpConnection& c) { raw->HandleHttp(r, c); });
@@ -156,6 +157,7 @@ void DanceServer::Shutdown() {
   if (http_) http_->Stop();
   // Ends live sessions first (their calls finish with UNAVAILABLE), then the gRPC server.
   if (hub_) hub_->Shutdown();
+  if (edit_jobs_) edit_jobs_->Shutdown();  // queued edits end UNAVAILABLE, running ones stop at their next step
   if (grpc_) grpc_->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(5));
   if (registry_) registry_->Stop();  // after gRPC: relays still in flight use its lookups
   Log(LogLevel::kInfo, "server_stop", {{"frames_total", metrics_.frames_total.load()}});

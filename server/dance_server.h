@@ -26,6 +26,8 @@
 #include "absl/time/time.h"
 #include "server/cluster/cluster_service.h"
 #include "server/cluster/registry.h"
+#include "server/core/edit_jobs.h"
+#include "server/core/editor_port.h"
 #include "server/core/engine_port.h"
 #include "server/core/metrics.h"
 #include "server/core/session_hub.h"
@@ -51,6 +53,9 @@ struct DanceServerOptions {
   // cluster.store_address set = one of several servers: sessions registered in the store, Watch and
   // ListSessions reach sessions on every server, /ws/watch relayed (docs/server.md, "Several servers").
   ClusterOptions cluster;
+  // Set = the Edit RPC with this diffusion editor (LoadEditorBackend) on edit.workers threads.
+  std::shared_ptr<const EditorBackend> editor;
+  EditJobsOptions edit;
 };
 
 class DanceServer {
@@ -79,6 +84,7 @@ class DanceServer {
   ServerMetrics metrics_;
   std::unique_ptr<EngineBackend> backend_;
   std::unique_ptr<SessionHub> hub_;
+  std::unique_ptr<EditJobs> edit_jobs_;                   // null without an editor
   std::unique_ptr<DanceServiceImpl> service_;
   std::unique_ptr<ClusterRegistry> registry_;             // null unless options_.cluster.store_address
   std::unique_ptr<ClusterDanceService> cluster_service_;  // wraps service_ when registry_ is set

@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <cstdlib>
 #include <iostream>
+#include <fstream>
 #include <string>
 #include <thread>
 #include <vector>
@@ -69,9 +70,19 @@ ABSL_FLAG(std::string, server_id, "", "With --cluster-store: this server's uniqu
 ABSL_FLAG(absl::Duration, cluster_ttl, absl::Seconds(5),
           "With --cluster-store: a server's entries expire this long after its last heartbeat.");
 
+ABSL_FLAG(std::string, editor_model, "",
+          "Diffusion editor model (.dncw of kind sgmd) for the Edit RPC. Default: models/sgmd.dncw if present; "
+          "'off' = no Edit RPC.");
+ABSL_FLAG(int, edit_workers, 1, "Edits that run at once (each takes one core while it runs).");
+ABSL_FLAG(int, edit_queue, 8, "Edits that may wait for a worker before Edit answers RESOURCE_EXHAUSTED.");
+ABSL_FLAG(int, edit_max_per_client, 1, "Edits one client address may have queued or running.");
+ABSL_FLAG(double, edit_max_audio_s, 600, "Longest song an edit accepts, seconds.");
+ABSL_FLAG(int, edit_max_audio_mb, 16, "Largest encoded song an edit accepts, MB (raises the gRPC message limit).");
+
 namespace {
 
-constexpr const char* kFlagNames[] = {
+constexpr const char* kFlagNames[] = {"editor_model", "edit_workers", "edit_queue", "edit_max_per_client",
+    "edit_max_audio_s", "edit_max_audio_mb",
     "host", "port", "http_port", "model", "web_root", "max_sessions", "scheduler_threads", "max_batch",
     "max_viewers", "max_chunk_samples", "min_sample_rate", "max_sample_rate", "max_channels",
     "max_pending_seconds", "max_message_bytes", "performer_queue", "viewer_queue", "max_http_connections",
@@ -92,6 +103,15 @@ bool ApplyEnvironment() {
     }
   }
   return true;
+}
+
+// models/sgmd.dncw (in . or the source tree), or "" if neither has one.
+std::string DefaultEditorModel() {
+  for (const std::string& base : {std::string("."), std::string(DANCE_SOURCE_DIR)}) {
+    const std::string path = absl::StrCat(base, "/models/sgmd.dncw");
+    if (std::ifstream(path).good()) return path;
+  }
+  return "";
 }
 
 std::string DefaultModel() {
@@ -197,6 +217,21 @@ int main(int argc, char** argv) {
   o.max_message_bytes = absl::GetFlag(FLAGS_max_message_bytes);
   o.keepalive_time = absl::GetFlag(FLAGS_keepalive_time);
   o.keepalive_timeout = absl::GetFlag(FLAGS_keepalive_timeout);
+  std::string editor_path = absl::GetFlag(FLAGS_editor_model);
+  if (editor_path.empty()) editor_path = DefaultEditorModel();
+  if (!editor_path.empty() && editor_path != "off") {
+    auto editor = dance::server::LoadEditorBackend(editor_path);
+    if (!editor.ok()) {
+      Log(LogLevel::kError, "editor_load_failed", {{"path", editor_path}, {"error", editor.status().ToString()}});
+      return 1;
+    }
+    o.editor = *std::move(editor);
+    o.edit.workers = std::max(1, absl::GetFlag(FLAGS_edit_workers));
+    o.edit.max_queued = std::max(0, absl::GetFlag(FLAGS_edit_queue));
+    o.edit.max_per_client = std::max(1, absl::GetFlag(FLAGS_edit_max_per_client));
+    o.edit.max_audio_s = absl::GetFlag(FLAGS_edit_max_audio_s);
+    o.max_message_bytes = std::max(o.max_message_bytes, (absl::GetFlag(FLAGS_edit_max_audio_mb) + 1) << 20);
+  }
   o.tls_cert_file = absl::GetFlag(FLAGS_tls_cert);
   o.tls_key_file = absl::GetFlag(FLAGS_tls_key);
   o.cluster.store_address = absl::GetFlag(FLAGS_cluster_store);
@@ -211,7 +246,8 @@ int main(int argc, char** argv) {
     return 1;
   }
   std::cout << "dance-server: gRPC on port " << (*server)->port() << ", HTTP on port " << (*server)->http_port()
-            << ", model " << model_path << std::endl;
+            << ", model " << model_path
+            << (o.editor != nullptr ? absl::StrCat(", editor ", editor_path) : std::string(", no editor")) << std::endl;
 
   int sig = 0;
   sigwait(&signals, &sig);

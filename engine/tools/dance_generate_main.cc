@@ -11,6 +11,13 @@
 // --trajectory reads dance-trajectory/v1, --mask dance-mask/v1. They combine (later ones win where two
 // give the same joint: inpaint, given halves, seed, keyframes).
 //
+// --backend diffusion (or a --model of kind "sgmd") makes the dance with SGMD, the motion-diffusion editor
+// (docs/diffusion.md; default model models/sgmd.dncw): the whole song at once in 5-s windows that agree on
+// their overlaps, with the same control flags, --style, --seed and --foot-lock; --steps N (DDIM steps,
+// default the model's), --guidance W (its classifier-free guidance on the music, 1 = off; default the
+// model's), --overlap-s S (seconds two windows share; default the model's, 2.5). The token model's sampling
+// flags (temperature, top-k/p, music guidance, period lock, crouch guard, codes/tokens out) do not apply.
+//
 // --gltf writes glTF 2.0 (a skinned skeleton with the dance as its animation; .glb binary or .gltf text),
 // --vrma VRM Animation (client/export/gltf_writer.h).
 //
@@ -41,7 +48,9 @@
 #include "absl/strings/str_split.h"
 #include "engine/audio/npy_writer.h"
 #include "client/export/gltf_writer.h"
+#include "engine/diffusion/sgmd_dance.h"
 #include "engine/engine.h"
+#include "engine/nn/weights_file.h"
 #include "nlohmann/json.hpp"
 
 namespace {
@@ -51,6 +60,10 @@ using namespace dance::engine;  // NOLINT: a tool's main
 struct Flags {
   std::string audio, out, bvh, model, codes_out, tokens_out;
   std::string gltf, vrma;  // glTF 2.0 (.glb / .gltf) and VRM Animation outputs
+  std::string backend;     // "", "tokens" or "diffusion"
+  int diffusion_steps = 0;            // --steps (0: the model's)
+  double overlap_s = -1.0;            // --overlap-s (negative: the model's)
+  bool guidance_set = false;
   uint64_t seed = 0;
   std::string style;
   SamplingOptions sampling;
@@ -66,7 +79,8 @@ constexpr char kUsage[] =
     "                      [--bvh DANCE.bvh] [--codes-out CODES.npy] [--tokens-out TOKENS.npy] [--quiet]\n"
     "                      [--seed-motion FILE] [--given-upper FILE] [--given-lower FILE] [--keyframes FILE]\n"
     "                      [--inpaint FILE --mask MASK.json] [--trajectory PATH.json]\n"
-    "                      [--gltf DANCE.glb|.gltf] [--vrma DANCE.vrma]\n";
+    "                      [--gltf DANCE.glb|.gltf] [--vrma DANCE.vrma]\n"
+    "                      [--backend tokens|diffusion] [--steps N] [--overlap-s S]\n";
 
 // The frames as plain arrays for the glTF / VRMA writers.
 dance::client::MotionClip ClipOf(const Skeleton& skeleton, const std::vector<PoseFrame>& frames) {
@@ -136,6 +150,14 @@ absl::Status ParseFlags(int argc, char** argv, Flags* f) {
       ok = absl::SimpleAtof(v, &f->sampling.top_p);
     } else if (arg == "--guidance") {
       ok = absl::SimpleAtof(v, &f->sampling.guidance);
+      f->guidance_set = true;
+    } else if (arg == "--backend") {
+      ok = v == "tokens" || v == "diffusion";
+      f->backend = v;
+    } else if (arg == "--steps") {
+      ok = absl::SimpleAtoi(v, &f->diffusion_steps) && f->diffusion_steps >= 1;
+    } else if (arg == "--overlap-s") {
+      ok = absl::SimpleAtod(v, &f->overlap_s) && f->overlap_s >= 0.0 && std::isfinite(f->overlap_s);
     } else if (arg == "--music-guidance") {
       ok = absl::SimpleAtof(v, &f->sampling.music_guidance);
     } else if (arg == "--period-lock") {
@@ -208,8 +230,93 @@ absl::StatusOr<Controls> BuildControlsFromFlags(const Flags& f, double duration_
 
 constexpr char kDefaultModel[] = "models/default.dncw";
 constexpr char kFallbackModel[] = "models/test-tiny.dncw";  // until the trained model is committed
+constexpr char kDefaultDiffusionModel[] = "models/sgmd.dncw";
+
+// Whether the weights file at `path` is an SGMD model (metadata kind "sgmd").
+bool IsSgmdFile(const std::string& path) {
+  absl::StatusOr<WeightsFile> f = WeightsFile::Load(path);
+  return f.ok() && f->metadata().value("kind", "") == "sgmd";
+}
+
+absl::Status RunDiffusion(const Flags& flags) {
+  for (const auto& [set, name] : {std::pair{!flags.codes_out.empty(), "--codes-out"},
+                                  std::pair{!flags.tokens_out.empty(), "--tokens-out"}}) {
+    if (set) return absl::InvalidArgumentError(absl::StrCat(name, " needs the token model (--backend tokens)"));
+  }
+  const std::string path = flags.model.empty() ? kDefaultDiffusionModel : flags.model;
+  absl::StatusOr<std::shared_ptr<const SgmdModel>> model = SgmdModel::Load(path);
+  if (!model.ok()) return model.status();
+  absl::StatusOr<audio::DecodedAudio> audio = audio::DecodeAudioFile(flags.audio);
+  if (!audio.ok()) return audio.status();
+  SgmdDanceOptions options;
+  options.seed = flags.seed;
+  absl::StatusOr<std::vector<std::pair<std::string, float>>> style = ParseStyle(flags.style);
+  if (!style.ok()) return style.status();
+  options.style = *style;
+  options.steps = flags.diffusion_steps;
+  if (flags.guidance_set) {
+    if (!(flags.sampling.guidance > 0.0f)) {
+      return absl::InvalidArgumentError(absl::StrCat("--guidance must be > 0, got ", flags.sampling.guidance));
+    }
+    options.guidance = flags.sampling.guidance;
+  }
+  if (flags.overlap_s >= 0.0) options.overlap_frames = static_cast<int>(std::lround(flags.overlap_s * 30.0));
+  options.foot_lock = flags.sampling.foot_lock;
+  std::vector<std::string> control_names;
+  absl::StatusOr<Controls> controls = BuildControlsFromFlags(flags, audio->duration_s(), &control_names);
+  if (!controls.ok()) return controls.status();
+  options.controls = *std::move(controls);
+  const auto start = std::chrono::steady_clock::now();
+  absl::StatusOr<audio::FeatureFrames> song = SongFeatures(*audio);
+  if (!song.ok()) return song.status();
+  absl::StatusOr<SgmdDance> dance = GenerateSgmdDance(**model, *song, options);
+  if (!dance.ok()) return dance.status();
+  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const double duration = audio->duration_s();
+  std::vector<PoseFrame>& frames = dance->frames;
+  while (!frames.empty() && frames.back().time_s >= duration) frames.pop_back();
+  DanceInfo info;
+  info.model_id = (*model)->model_id();
+  info.seed = flags.seed;
+  nlohmann::json style_json = nlohmann::json::object();
+  for (const auto& [name, w] : options.style) style_json[name] = w;
+  info.extra = {{"backend", "diffusion"},
+                {"style", style_json},
+                {"steps", dance->steps},
+                {"guidance", dance->guidance},
+                {"overlap_s", dance->overlap_frames / 30.0},
+                {"windows", dance->windows},
+                {"foot_lock", options.foot_lock},
+                {"audio_file", flags.audio},
+                {"audio_duration_s", duration},
+                {"generator", "dance-generate"}};
+  if (!control_names.empty()) info.extra["controls"] = control_names;
+  const Skeleton& skeleton = (*model)->skeleton();
+  if (absl::Status st = WriteDanceJson(flags.out, skeleton, frames, info); !st.ok()) return st;
+  if (!flags.bvh.empty()) {
+    if (absl::Status st = WriteBvh(flags.bvh, skeleton, frames); !st.ok()) return st;
+  }
+  for (const std::string& p : {flags.gltf, flags.vrma}) {
+    if (p.empty()) continue;
+    if (absl::Status st = dance::client::WriteMotionFile(p, ClipOf(skeleton, frames)); !st.ok()) return st;
+  }
+  if (!flags.quiet) {
+    nlohmann::json summary = {{"frames", frames.size()}, {"windows", dance->windows}, {"steps", dance->steps},
+                              {"audio_s", duration}, {"wall_s", wall_s},
+                              {"x_real_time", wall_s > 0 ? duration / wall_s : 0.0},
+                              {"model_id", (*model)->model_id()}, {"backend", "diffusion"}, {"out", flags.out}};
+    std::cout << summary.dump() << std::endl;
+  }
+  return absl::OkStatus();
+}
 
 absl::Status Run(Flags flags) {
+  if (flags.backend == "diffusion" || (flags.backend.empty() && !flags.model.empty() && IsSgmdFile(flags.model))) {
+    return RunDiffusion(flags);
+  }
+  if (flags.diffusion_steps > 0 || flags.overlap_s >= 0.0) {
+    return absl::InvalidArgumentError("--steps and --overlap-s are for the diffusion backend (--backend diffusion)");
+  }
   if (flags.model.empty()) {
     flags.model = kDefaultModel;
     if (!std::filesystem::exists(flags.model) && std::filesystem::exists(kFallbackModel)) {

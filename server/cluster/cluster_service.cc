@@ -196,6 +196,11 @@ grpc::ServerUnaryReactor* ClusterDanceService::GetModelInfo(grpc::CallbackServer
   return local_->GetModelInfo(context, request, response);
 }
 
+grpc::ServerWriteReactor<dance::v1::EditUpdate>* ClusterDanceService::Edit(grpc::CallbackServerContext* context,
+                                                                           const dance::v1::EditRequest* request) {
+  return local_->Edit(context, request);
+}
+
 grpc::ServerWriteReactor<DanceUpdate>* ClusterDanceService::Watch(grpc::CallbackServerContext* context,
                                                                   const dance::v1::WatchRequest* request) {
   if (IsPeerCall(*context) || local_->hub()->Find(request->session_id()) != nullptr ||

@@ -50,6 +50,9 @@ class ClusterDanceService final : public dance::v1::DanceService::CallbackServic
   grpc::ServerUnaryReactor* GetModelInfo(grpc::CallbackServerContext* context,
                                          const dance::v1::GetModelInfoRequest* request,
                                          dance::v1::ModelInfo* response) override;
+  // Edits run on the server the client reached (they need no session).
+  grpc::ServerWriteReactor<dance::v1::EditUpdate>* Edit(grpc::CallbackServerContext* context,
+                                                        const dance::v1::EditRequest* request) override;
 
   // A stub to a peer's gRPC address; channels are made once per address and kept.
   std::shared_ptr<dance::v1::DanceService::Stub> PeerStub(const std::string& address);

@@ -2,6 +2,7 @@
 // (engine/engine.h). The only file of the server that includes an engine header.
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <utility>
@@ -10,6 +11,7 @@
 #include "absl/strings/str_cat.h"
 
 #include "engine/engine.h"
+#include "server/core/editor_port.h"
 #include "server/core/engine_port.h"
 
 namespace dance::server {
@@ -51,9 +53,28 @@ engine::TrajectoryPoint ToEngine(const PathPointSpec& p) {
   return q;
 }
 
-// The spec as the engine's Controls; a seed starts no earlier than `seed_not_before_frame`. Errors are
-// prefixed "controls: ".
-absl::StatusOr<engine::Controls> BuildEngineControls(const ControlSpec& c, int64_t seed_not_before_frame) {
+FrameData ToFrameData(const engine::PoseFrame& f) {
+  FrameData d;
+  d.index = f.index;
+  d.time_s = f.time_s;
+  for (int j = 0; j < kNumJoints; ++j) {
+    for (int k = 0; k < 3; ++k) d.positions[3 * j + k] = f.positions[j][k];
+    const Eigen::Quaternionf& q = f.rotations[j];
+    d.rotations[4 * j + 0] = q.w();
+    d.rotations[4 * j + 1] = q.x();
+    d.rotations[4 * j + 2] = q.y();
+    d.rotations[4 * j + 3] = q.z();
+  }
+  d.upper_code = f.upper_code;
+  d.lower_code = f.lower_code;
+  return d;
+}
+
+// The spec as the engine's Controls; a seed starts no earlier than `seed_not_before_frame`; motion must
+// start within `duration_s`. Errors are prefixed "controls: ".
+absl::StatusOr<engine::Controls> BuildEngineControls(
+    const ControlSpec& c, int64_t seed_not_before_frame,
+    double duration_s = std::numeric_limits<double>::infinity()) {
   engine::ControlSpec spec;
   spec.seed = ToEngine(c.seed, "controls.seed");
   spec.given_upper = ToEngine(c.given_upper, "controls.given_upper");
@@ -65,6 +86,7 @@ absl::StatusOr<engine::Controls> BuildEngineControls(const ControlSpec& c, int64
   for (const PathPointSpec& p : c.trajectory) spec.trajectory.push_back(ToEngine(p));
   engine::BuildOptions options;
   options.seed_not_before_frame = seed_not_before_frame;
+  options.duration_s = duration_s;
   return engine::BuildControls(spec, options);
 }
 
@@ -101,22 +123,7 @@ class EngineSessionStream final : public EngineStream {
   void PopFrames(std::vector<FrameData>* out) override {
     scratch_.clear();
     session_->PopFrames(&scratch_);
-    for (const engine::PoseFrame& f : scratch_) {
-      FrameData d;
-      d.index = f.index;
-      d.time_s = f.time_s;
-      for (int j = 0; j < kNumJoints; ++j) {
-        for (int k = 0; k < 3; ++k) d.positions[3 * j + k] = f.positions[j][k];
-        const Eigen::Quaternionf& q = f.rotations[j];
-        d.rotations[4 * j + 0] = q.w();
-        d.rotations[4 * j + 1] = q.x();
-        d.rotations[4 * j + 2] = q.y();
-        d.rotations[4 * j + 3] = q.z();
-      }
-      d.upper_code = f.upper_code;
-      d.lower_code = f.lower_code;
-      out->push_back(d);
-    }
+    for (const engine::PoseFrame& f : scratch_) out->push_back(ToFrameData(f));
     if (!scratch_.empty()) {
       last_root_ = scratch_.back().positions[0];
       have_root_ = true;
@@ -309,6 +316,83 @@ class EngineBackendImpl final : public EngineBackend {
 };
 
 }  // namespace
+
+class EditorBackendImpl final : public EditorBackend {
+ public:
+  explicit EditorBackendImpl(std::shared_ptr<const engine::SgmdModel> model) : model_(std::move(model)) {
+    const engine::SgmdConfig& c = model_->config();
+    desc_.model_id = model_->model_id();
+    desc_.styles = model_->styles();
+    desc_.default_steps = model_->sampling_defaults().steps;
+    desc_.default_guidance = model_->sampling_defaults().guidance;
+    desc_.default_overlap_s = model_->sampling_defaults().overlap_frames / 30.0;
+    desc_.window_s = c.frames / 30.0;
+    const engine::Skeleton& sk = model_->skeleton();
+    desc_.joint_names = sk.joint_names;
+    for (int j = 0; j < kNumJoints; ++j) {
+      desc_.parents.push_back(sk.parents[j]);
+      for (int k = 0; k < 3; ++k) desc_.rest_offsets.push_back(sk.offsets[j][k]);
+    }
+  }
+
+  const EditorDescription& Describe() const override { return desc_; }
+
+  absl::StatusOr<EditOutput> Edit(const EditConfig& config, double max_audio_s,
+                                  const std::function<bool(const EditProgress&)>& progress) const override {
+    if (config.audio.empty()) return absl::InvalidArgumentError("audio: no song given");
+    const std::string name = config.audio_name.empty() ? "audio" : config.audio_name;
+    absl::StatusOr<engine::audio::DecodedAudio> audio = engine::audio::DecodeAudioMemory(
+        absl::MakeConstSpan(reinterpret_cast<const uint8_t*>(config.audio.data()), config.audio.size()), name);
+    if (!audio.ok()) return absl::InvalidArgumentError(absl::StrCat("audio: ", audio.status().message()));
+    const double duration = audio->duration_s();
+    if (duration > max_audio_s) {
+      return absl::InvalidArgumentError(absl::StrCat("audio: ", duration, " s is longer than this server's limit of ",
+                                                     max_audio_s, " s"));
+    }
+    engine::SgmdDanceOptions o;
+    o.seed = config.seed;
+    o.style = config.style;
+    o.steps = config.steps;
+    o.guidance = config.guidance;
+    if (config.overlap_s > 0.0) o.overlap_frames = static_cast<int>(std::lround(config.overlap_s * 30.0));
+    o.foot_lock = config.foot_lock;
+    if (!config.controls.empty()) {
+      absl::StatusOr<engine::Controls> c = BuildEngineControls(config.controls, 0, duration);
+      if (!c.ok()) return c.status();
+      o.controls = *std::move(c);
+    }
+    o.progress = [&progress](int64_t done, int64_t total) { return progress({done, total}); };
+    absl::StatusOr<engine::audio::FeatureFrames> song = engine::SongFeatures(*audio);
+    if (!song.ok()) return song.status();
+    absl::StatusOr<engine::SgmdDance> dance = engine::GenerateSgmdDance(*model_, *song, o);
+    if (dance.status().code() == absl::StatusCode::kNotFound) {  // an unknown style: the request's fault
+      return absl::InvalidArgumentError(absl::StrCat("style: ", dance.status().message()));
+    }
+    if (!dance.ok()) return dance.status();
+    EditOutput out;
+    out.windows = dance->windows;
+    out.steps = dance->steps;
+    out.guidance = dance->guidance;
+    out.overlap_s = dance->overlap_frames / 30.0;
+    out.audio_s = duration;
+    out.frames.reserve(dance->frames.size());
+    for (const engine::PoseFrame& f : dance->frames) {
+      if (f.time_s >= duration) break;
+      out.frames.push_back(ToFrameData(f));
+    }
+    return out;
+  }
+
+ private:
+  std::shared_ptr<const engine::SgmdModel> model_;
+  EditorDescription desc_;
+};
+
+absl::StatusOr<std::unique_ptr<EditorBackend>> LoadEditorBackend(const std::string& model_path) {
+  absl::StatusOr<std::shared_ptr<const engine::SgmdModel>> model = engine::SgmdModel::Load(model_path);
+  if (!model.ok()) return model.status();
+  return std::make_unique<EditorBackendImpl>(*std::move(model));
+}
 
 absl::StatusOr<std::unique_ptr<EngineBackend>> LoadEngineBackend(const std::string& model_path) {
   absl::StatusOr<std::shared_ptr<const engine::Model>> model = engine::LoadModel(model_path);

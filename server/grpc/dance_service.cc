@@ -6,6 +6,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/time/clock.h"
 #include "server/grpc/convert.h"
+#include "server/grpc/edit_reactor.h"
 #include "server/grpc/stream_writer.h"
 #include "server/log.h"
 
@@ -226,8 +227,9 @@ class WatchReactor final : public grpc::ServerWriteReactor<DanceUpdate> {
 
 }  // namespace
 
-DanceServiceImpl::DanceServiceImpl(SessionHub* hub, ServerMetrics* metrics, ServiceOptions options)
-    : hub_(hub), metrics_(metrics), options_(std::move(options)) {}
+DanceServiceImpl::DanceServiceImpl(SessionHub* hub, ServerMetrics* metrics, ServiceOptions options,
+                                   EditJobs* edit_jobs)
+    : hub_(hub), metrics_(metrics), options_(std::move(options)), edit_jobs_(edit_jobs) {}
 
 absl::Status DanceServiceImpl::CheckAuth(const grpc::CallbackServerContext& context) const {
   if (options_.auth_token.empty()) return absl::OkStatus();
@@ -277,8 +279,14 @@ grpc::ServerUnaryReactor* DanceServiceImpl::GetModelInfo(grpc::CallbackServerCon
   response->set_max_sessions(hub_->options().max_sessions);
   response->set_active_sessions(hub_->active_sessions());
   response->set_max_chunk_samples(options_.limits.max_chunk_samples);
+  if (edit_jobs_ != nullptr) EditorToProto(*edit_jobs_, response->mutable_editor());
   reactor->Finish(grpc::Status::OK);
   return reactor;
+}
+
+grpc::ServerWriteReactor<dance::v1::EditUpdate>* DanceServiceImpl::Edit(grpc::CallbackServerContext* context,
+                                                                        const dance::v1::EditRequest* request) {
+  return NewEditReactor(this, context, *request);
 }
 
 }  // namespace dance::server

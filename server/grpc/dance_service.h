@@ -21,6 +21,7 @@
 #include "absl/status/status.h"
 #include "absl/time/time.h"
 #include "dance/v1/dance.grpc.pb.h"
+#include "server/core/edit_jobs.h"
 #include "server/core/metrics.h"
 #include "server/core/session_hub.h"
 #include "server/core/stream_request.h"
@@ -38,7 +39,8 @@ struct ServiceOptions {
 
 class DanceServiceImpl final : public dance::v1::DanceService::CallbackService {
  public:
-  DanceServiceImpl(SessionHub* hub, ServerMetrics* metrics, ServiceOptions options);
+  // `edit_jobs` may be null (no editor: Edit answers UNIMPLEMENTED).
+  DanceServiceImpl(SessionHub* hub, ServerMetrics* metrics, ServiceOptions options, EditJobs* edit_jobs = nullptr);
 
   grpc::ServerBidiReactor<dance::v1::PerformRequest, dance::v1::DanceUpdate>* Perform(
       grpc::CallbackServerContext* context) override;
@@ -50,6 +52,8 @@ class DanceServiceImpl final : public dance::v1::DanceService::CallbackService {
   grpc::ServerUnaryReactor* GetModelInfo(grpc::CallbackServerContext* context,
                                          const dance::v1::GetModelInfoRequest* request,
                                          dance::v1::ModelInfo* response) override;
+  grpc::ServerWriteReactor<dance::v1::EditUpdate>* Edit(grpc::CallbackServerContext* context,
+                                                        const dance::v1::EditRequest* request) override;
 
   // OK, or UNAUTHENTICATED when a token is configured and the call lacks "authorization: Bearer <token>".
   absl::Status CheckAuth(const grpc::CallbackServerContext& context) const;
@@ -57,11 +61,13 @@ class DanceServiceImpl final : public dance::v1::DanceService::CallbackService {
   SessionHub* hub() const { return hub_; }
   ServerMetrics* metrics() const { return metrics_; }
   const ServiceOptions& options() const { return options_; }
+  EditJobs* edit_jobs() const { return edit_jobs_; }
 
  private:
   SessionHub* const hub_;
   ServerMetrics* const metrics_;
   const ServiceOptions options_;
+  EditJobs* const edit_jobs_;
 };
 
 }  // namespace dance::server

@@ -328,6 +328,76 @@ absl::string_view UpdateToJson(const Update& update, bool with_rotations, int64_
   return update.Encoding<std::string>(JsonSlot(rotations), [&] { return Encode(update, rotations, 0); });
 }
 
+absl::StatusOr<EditConfig> EditConfigFromJson(const json& j) {
+  EditConfig c;
+  absl::Status st;
+  if (j.contains("audio_name")) {
+    if (!j["audio_name"].is_string()) return absl::InvalidArgumentError("'audio_name' must be a string");
+    c.audio_name = j["audio_name"].get<std::string>().substr(0, 200);
+  }
+  if (j.contains("style")) {
+    absl::StatusOr<StyleMix> style = StyleFromJson(j["style"]);
+    if (!style.ok()) return style.status();
+    c.style = *std::move(style);
+  }
+  if (j.contains("seed") && !(j["seed"].is_number_unsigned() || (j["seed"].is_number_integer() && j["seed"].get<int64_t>() >= 0))) {
+    return absl::InvalidArgumentError("'seed' must be a non-negative integer");
+  }
+  st.Update(Number(j, "seed", &c.seed));
+  if (j.contains("steps") && !j["steps"].is_number_integer()) return absl::InvalidArgumentError("'steps' must be an integer");
+  st.Update(Number(j, "steps", &c.steps));
+  st.Update(Number(j, "guidance", &c.guidance));
+  st.Update(Number(j, "overlap_s", &c.overlap_s));
+  if (!st.ok()) return st;
+  if (j.contains("raw_feet")) {
+    if (!j["raw_feet"].is_boolean()) return absl::InvalidArgumentError("'raw_feet' must be true or false");
+    c.foot_lock = !j["raw_feet"].get<bool>();
+  }
+  if (j.contains("controls")) {
+    absl::StatusOr<ControlSpec> controls = ControlsFromJson(j["controls"]);
+    if (!controls.ok()) return controls.status();
+    c.controls = *std::move(controls);
+  }
+  return c;
+}
+
+std::string EditEventToJson(const EditEvent& e, const EditorDescription& editor, bool with_rotations) {
+  switch (e.kind) {
+    case EditEvent::Kind::kQueued:
+      return json{{"type", "queued"}, {"position", e.position}}.dump();
+    case EditEvent::Kind::kProgress:
+      return json{{"type", "progress"}, {"steps_done", e.progress.steps_done},
+                  {"steps_total", e.progress.steps_total}}.dump();
+    case EditEvent::Kind::kDone:
+      break;
+  }
+  if (!e.status.ok() || e.output == nullptr) return ErrorToJson(e.status.ok() ? absl::InternalError("no result") : e.status);
+  const EditOutput& out = *e.output;
+  json frames = json::array();
+  for (const FrameData& f : out.frames) {
+    json jf = {{"index", f.index}, {"time_ms", f.time_s * 1000.0},
+               {"positions", std::vector<float>(f.positions.begin(), f.positions.end())}};
+    if (with_rotations) jf["rotations"] = std::vector<float>(f.rotations.begin(), f.rotations.end());
+    frames.push_back(std::move(jf));
+  }
+  return json{{"type", "result"}, {"model_id", editor.model_id}, {"fps", 30.0}, {"windows", out.windows},
+              {"steps", out.steps}, {"guidance", out.guidance}, {"overlap_s", out.overlap_s},
+              {"audio_ms", out.audio_s * 1000.0}, {"compute_ms", e.compute_s * 1000.0},
+              {"skeleton", {{"joint_names", editor.joint_names}, {"parents", editor.parents},
+                            {"rest_offsets", editor.rest_offsets}}},
+              {"frames", std::move(frames)}}
+      .dump();
+}
+
+json EditorToJson(const EditJobs& jobs) {
+  const EditorDescription& d = jobs.editor()->Describe();
+  return json{{"model_id", d.model_id}, {"styles", d.styles}, {"default_steps", d.default_steps},
+              {"default_guidance", d.default_guidance}, {"default_overlap_s", d.default_overlap_s},
+              {"window_s", d.window_s}, {"workers", jobs.options().workers},
+              {"max_queued", jobs.options().max_queued}, {"max_per_client", jobs.options().max_per_client},
+              {"max_audio_s", jobs.options().max_audio_s}};
+}
+
 std::string ErrorToJson(const absl::Status& status) {
   return json{{"type", "error"},
               {"code", absl::StatusCodeToString(status.code())},

@@ -19,6 +19,7 @@
 #include "absl/status/statusor.h"
 #include "absl/strings/string_view.h"
 #include "nlohmann/json.hpp"
+#include "server/core/edit_jobs.h"
 #include "server/core/engine_port.h"
 #include "server/core/live_session.h"
 #include "server/core/stream_request.h"
@@ -41,6 +42,11 @@ absl::StatusOr<SteerTarget> SteerFromJson(const nlohmann::json& steer);
 // {"type": "poses", "poses": [{"time_ms", "positions": [72 numbers], "part": "upper"|"lower"|"all"}]}.
 absl::StatusOr<std::vector<PoseRequest>> PosesFromJson(const nlohmann::json& poses);
 
+// {"type": "edit", "audio_name", "style", "seed", "steps", "guidance", "overlap_s", "controls", "raw_feet"}
+// (the song comes in the next, binary, message): the EditConfig without its audio. INVALID_ARGUMENT for a
+// key of the wrong type; the numbers are checked by ValidateEditConfig.
+absl::StatusOr<EditConfig> EditConfigFromJson(const nlohmann::json& edit);
+
 // ---- out ----
 // The update as its JSON text message. For dropped_before == 0 the text is built once per update and
 // rotations choice and kept on the update (update.h), shared by every socket that sends it; the view stays
@@ -51,6 +57,11 @@ absl::string_view UpdateToJson(const Update& update, bool with_rotations, int64_
 std::string ErrorToJson(const absl::Status& status);
 nlohmann::json ModelToJson(const ModelDescription& model);
 nlohmann::json SummaryToJson(const SessionSummary& summary);
+// {"type": "queued", "position"} / {"type": "progress", "steps_done", "steps_total"} / {"type": "result",
+// "model_id", "fps", "windows", "steps", "guidance", "overlap_s", "audio_ms", "compute_ms", "skeleton":
+// {"joint_names", "parents", "rest_offsets"}, "frames": [{"index", "time_ms", "positions", "rotations"}]}.
+std::string EditEventToJson(const EditEvent& event, const EditorDescription& editor, bool with_rotations);
+nlohmann::json EditorToJson(const EditJobs& jobs);
 
 }  // namespace dance::server
 

@@ -1,7 +1,11 @@
 #include "server/web/web_handler.h"
 
+#include <arpa/inet.h>
+#include <netinet/in.h>
 #include <sys/socket.h>
 
+#include <algorithm>
+#include <deque>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -67,10 +71,22 @@ void WriterLoop(WsSink* sink, WebSocket* ws, int fd) {
   ::shutdown(fd, SHUT_RD);
 }
 
+// The connection's remote address (no port): the key of the per-client edit limit.
+std::string PeerAddress(int fd) {
+  sockaddr_storage addr{};
+  socklen_t len = sizeof(addr);
+  if (::getpeername(fd, reinterpret_cast<sockaddr*>(&addr), &len) != 0) return "unknown";
+  char text[INET6_ADDRSTRLEN] = {0};
+  const void* where = addr.ss_family == AF_INET6 ? static_cast<const void*>(&reinterpret_cast<sockaddr_in6*>(&addr)->sin6_addr)
+                                                 : static_cast<const void*>(&reinterpret_cast<sockaddr_in*>(&addr)->sin_addr);
+  if (::inet_ntop(addr.ss_family, where, text, sizeof(text)) == nullptr) return "unknown";
+  return text;
+}
+
 }  // namespace
 
-WebHandler::WebHandler(SessionHub* hub, ServerMetrics* metrics, WebOptions options)
-    : hub_(hub), metrics_(metrics), options_(std::move(options)) {}
+WebHandler::WebHandler(SessionHub* hub, ServerMetrics* metrics, WebOptions options, EditJobs* edit_jobs)
+    : hub_(hub), metrics_(metrics), options_(std::move(options)), edit_jobs_(edit_jobs) {}
 
 bool WebHandler::Authorized(const HttpRequest& req) const {
   if (options_.auth_token.empty()) return true;
@@ -113,11 +129,14 @@ void WebHandler::Handle(const HttpRequest& req, HttpConnection& conn) {
     json m = ModelToJson(hub_->model());
     m["max_sessions"] = hub_->options().max_sessions;
     m["active_sessions"] = hub_->active_sessions();
+    if (edit_jobs_ != nullptr) m["editor"] = EditorToJson(*edit_jobs_);
     conn.Respond(200, "application/json", m.dump());
   } else if (req.path == "/ws/watch") {
     WatchSocket(req, conn);
   } else if (req.path == "/ws/perform") {
     PerformSocket(req, conn);
+  } else if (req.path == "/ws/edit") {
+    EditSocket(req, conn);
   } else if (api) {
     conn.RespondJsonError(404, "no such endpoint");
   } else {
@@ -286,6 +305,98 @@ void WebHandler::PerformSocket(const HttpRequest& req, HttpConnection& conn) {
     sink->Close(error);
   }
   writer.join();
+}
+
+void WebHandler::EditSocket(const HttpRequest& req, HttpConnection& conn) {
+  if (!Upgrade(req, conn)) return;
+  WebSocket ws(conn.fd(), std::max(options_.max_ws_message_bytes, options_.max_edit_bytes));
+  auto fail = [&](const absl::Status& st) {
+    metrics_->CountError(st.code());
+    ws.SendText(ErrorToJson(st)).IgnoreError();
+    ws.SendClose(1008, "error").IgnoreError();
+  };
+  if (edit_jobs_ == nullptr) {
+    return fail(absl::UnimplementedError("this server has no editor model (start it with --editor-model)"));
+  }
+  if (!hub_->serving()) return fail(absl::UnavailableError("the server is draining"));
+  absl::StatusOr<WebSocket::Message> first = ws.Receive();
+  if (!first.ok()) return;
+  json request = first->binary ? json() : json::parse(first->data, nullptr, /*allow_exceptions=*/false);
+  if (!request.is_object() || request.value("type", "") != "edit") {
+    return fail(absl::InvalidArgumentError("first message must be {\"type\": \"edit\", ...}, then the song"));
+  }
+  absl::StatusOr<EditConfig> config = EditConfigFromJson(request);
+  if (!config.ok()) return fail(config.status());
+  absl::StatusOr<WebSocket::Message> song = ws.Receive();
+  if (!song.ok()) return;
+  if (!song->binary) return fail(absl::InvalidArgumentError("audio: the second message must be the song file (binary)"));
+  config->audio = std::move(song->data);
+  const EditorDescription& editor = edit_jobs_->editor()->Describe();
+  if (absl::Status st = ValidateEditConfig(*config, editor); !st.ok()) return fail(st);
+  const bool with_rotations = !(request.contains("omit_rotations") && request["omit_rotations"].is_boolean() &&
+                                request["omit_rotations"].get<bool>());
+
+  // Job events are queued here and sent by this thread; a reader thread notices the browser leaving.
+  struct Outbox {
+    absl::Mutex mu;
+    std::deque<std::string> texts;
+    bool done = false;
+    bool last_is_progress = false;
+    absl::Status status;
+  };
+  auto box = std::make_shared<Outbox>();
+  absl::StatusOr<std::shared_ptr<EditJob>> job = edit_jobs_->Submit(
+      absl::StrCat("http:", PeerAddress(conn.fd())),
+      *std::move(config), [box, &editor, with_rotations](const EditEvent& e) {
+        std::string text = EditEventToJson(e, editor, with_rotations);
+        absl::MutexLock lock(&box->mu);
+        const bool progress = e.kind == EditEvent::Kind::kProgress;
+        if (progress && box->last_is_progress && !box->texts.empty()) {
+          box->texts.back() = std::move(text);  // only the newest progress is worth sending
+        } else {
+          box->texts.push_back(std::move(text));
+        }
+        box->last_is_progress = progress;
+        if (e.kind == EditEvent::Kind::kDone) {
+          box->done = true;
+          box->status = e.status;
+        }
+      });
+  if (!job.ok()) return fail(job.status());
+  std::thread reader([&ws, job = *job] {
+    while (ws.Receive().ok()) {
+    }
+    job->Cancel();  // the browser closed the socket (or sent garbage): stop the edit
+  });
+  bool alive = true;
+  for (;;) {
+    std::deque<std::string> texts;
+    bool done = false;
+    absl::Status status;
+    {
+      absl::MutexLock lock(&box->mu);
+      box->mu.AwaitWithTimeout(absl::Condition(
+                                   +[](Outbox* b) { return b->done || !b->texts.empty(); }, box.get()),
+                               absl::Seconds(1));
+      texts.swap(box->texts);
+      box->last_is_progress = false;
+      done = box->done;
+      status = box->status;
+    }
+    for (const std::string& t : texts) {
+      if (alive && !ws.SendText(t).ok()) {
+        alive = false;
+        (*job)->Cancel();
+      }
+    }
+    if (done) {
+      if (!status.ok()) metrics_->CountError(status.code());
+      if (alive) ws.SendClose(status.ok() ? 1000 : 1008, status.ok() ? "done" : "error").IgnoreError();
+      break;
+    }
+  }
+  ::shutdown(conn.fd(), SHUT_RDWR);
+  reader.join();
 }
 
 }  // namespace dance::server

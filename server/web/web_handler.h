@@ -1,5 +1,7 @@
 // WebHandler: the dance server's HTTP routes (docs/protocol.md section 2): static files from the web root,
-// /metrics, /api/sessions, /api/model, /healthz, and the WebSocket endpoints /ws/watch and /ws/perform.
+// /metrics, /api/sessions, /api/model, /healthz, and the WebSocket endpoints /ws/watch, /ws/perform and
+// /ws/edit (the diffusion editor: one JSON request, the song as one binary message, then queue position,
+// progress and the whole dance back).
 // The web transport over the core (server/core/): it decodes and encodes the browser's JSON itself
 // (json_codec.h) and validates with the core's rules; no proto is involved.
 //
@@ -17,6 +19,7 @@
 #include <cstddef>
 #include <string>
 
+#include "server/core/edit_jobs.h"
 #include "server/core/metrics.h"
 #include "server/core/session_hub.h"
 #include "server/core/stream_request.h"
@@ -31,11 +34,13 @@ struct WebOptions {
   size_t viewer_queue_frames = 8;
   size_t performer_queue_limit = 1024;
   size_t max_ws_message_bytes = 1 << 20;
+  size_t max_edit_bytes = size_t{17} << 20;  // the song of a /ws/edit
 };
 
 class WebHandler {
  public:
-  WebHandler(SessionHub* hub, ServerMetrics* metrics, WebOptions options);
+  // `edit_jobs` may be null (no editor: /ws/edit answers an UNIMPLEMENTED error).
+  WebHandler(SessionHub* hub, ServerMetrics* metrics, WebOptions options, EditJobs* edit_jobs = nullptr);
   void Handle(const HttpRequest& request, HttpConnection& connection);
 
  private:
@@ -44,10 +49,12 @@ class WebHandler {
   bool Upgrade(const HttpRequest& request, HttpConnection& connection);
   void WatchSocket(const HttpRequest& request, HttpConnection& connection);
   void PerformSocket(const HttpRequest& request, HttpConnection& connection);
+  void EditSocket(const HttpRequest& request, HttpConnection& connection);
 
   SessionHub* const hub_;
   ServerMetrics* const metrics_;
   const WebOptions options_;
+  EditJobs* const edit_jobs_;
 };
 
 }  // namespace dance::server

@@ -53,7 +53,8 @@ async function waitHealthy(url, child, log, timeoutMs = 60000) {
 }
 
 /**
- * Starts dance-server on free ports with the test model and web/dist as the web root.
+ * Starts dance-server on free ports with the test model and web/dist as the web root (the diffusion
+ * editor only when DANCE_EDITOR_MODEL names one).
  * Resolves to {url, stop(), log}; stop() ends the process (SIGTERM, then SIGKILL after 5 s).
  */
 export async function startServer() {
@@ -69,7 +70,8 @@ export async function startServer() {
   if (!existsSync(join(webRoot, 'index.html'))) throw new Error(`no ${webRoot}/index.html: npm run build in web/`);
   const [grpcPort, httpPort] = [await freePort(), await freePort()];
   // Abseil flags: names with underscores.
-  const args = [`--model=${model}`, `--port=${grpcPort}`, `--http_port=${httpPort}`, `--web_root=${webRoot}`];
+  const args = [`--model=${model}`, `--port=${grpcPort}`, `--http_port=${httpPort}`, `--web_root=${webRoot}`,
+    `--editor_model=${process.env.DANCE_EDITOR_MODEL || 'off'}`];
   const child = spawn(binary, args, { stdio: ['ignore', 'pipe', 'pipe'] });
   const log = [];
   const keep = (d) => { log.push(d.toString()); if (log.length > 200) log.shift(); };

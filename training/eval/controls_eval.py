@@ -120,12 +120,13 @@ def constraint_errors(task: str, gen: Dance, real: Dance, seams_s: list[float]) 
   return out
 
 
-def generate(model: str, real: Dance, flags: list[str], out: pathlib.Path, seed: int) -> tuple[Dance, float]:
-  """One task's dance of one song through the engine; returns it and the wall time per step (ms)."""
+def generate(model: str, real: Dance, flags: list[str], out: pathlib.Path, seed: int) -> tuple[Dance, dict]:
+  """One task's dance of one song through the engine; returns it and dance-generate's summary (wall_s,
+  audio_s, steps, x_real_time, ...)."""
   summary = tools.dance_generate_summary(model, real.audio_path, out, seed=seed, style=real.style, extra=flags)
   d = evaluate.load_dance(out, audio=real.audio_path)
   d.name, d.style = real.name, real.style
-  return d, summary["wall_s"] / max(summary["steps"], 1) * 1000.0
+  return d, summary
 
 
 def main(argv=None) -> int:
@@ -136,6 +137,7 @@ def main(argv=None) -> int:
   ap.add_argument("--songs", default="", help="comma-separated validation ids (default: all Tang validation)")
   ap.add_argument("--tasks", default=",".join(TASKS), help="comma-separated subset of " + ", ".join(TASKS))
   ap.add_argument("--render", action="store_true")
+  ap.add_argument("--extra", default="", help="more dance-generate flags for every dance, e.g. '--steps 25'")
   args = ap.parse_args(argv)
   tasks = [t for t in args.tasks.split(",") if t]
   for t in tasks:
@@ -147,7 +149,7 @@ def main(argv=None) -> int:
   real = evaluate.cached_dances(ids)
   ev = evaluate.Evaluator.default()
   speeds = np.concatenate([_max_speed(r.positions) for r in real])
-  report = {"model": args.model, "seed": args.seed, "songs": ids,
+  report = {"model": args.model, "seed": args.seed, "songs": ids, "extra_flags": args.extra,
             "real_p95_max_joint_speed": float(np.percentile(speeds, 95)), "tasks": {}}
   conditions = {r.name: write_conditions(r, out / "inputs" / r.name) for r in real}
   first_seams = {}
@@ -156,11 +158,12 @@ def main(argv=None) -> int:
     (out / "dances" / task).mkdir(parents=True, exist_ok=True)
     for r in real:
       flags, seams = conditions[r.name][task]
-      d, ms = generate(args.model, r, flags, out / "dances" / task / f"{r.name}.json", args.seed)
+      d, summary = generate(args.model, r, flags + args.extra.split(), out / "dances" / task / f"{r.name}.json",
+                            args.seed)
       cut = evaluate.on_real_spans([d], [r])[0]
       dances.append(cut)
       errors.append(constraint_errors(task, cut, r, seams))
-      step_ms.append(ms)
+      step_ms.append(summary)
       if r is real[0]:
         first_seams[task] = (d, seams)
     row = ev.evaluate(dances)
@@ -168,7 +171,9 @@ def main(argv=None) -> int:
       vals = [e[key] for e in errors if key in e]
       row[key] = float(np.max(vals) if key.endswith("_max") or key.endswith("_max_cm") or key == "given_err_cm"
                        else np.mean(vals))
-    row["step_ms"] = float(np.mean(step_ms))
+    if summary.get("backend") != "diffusion":  # the token model's wall time per step
+      row["step_ms"] = float(np.mean([x["wall_s"] / max(x["steps"], 1) * 1000.0 for x in step_ms]))
+    row["x_real_time"] = float(np.sum([x["audio_s"] for x in step_ms]) / np.sum([x["wall_s"] for x in step_ms]))
     report["tasks"][task] = row
     print(task, json.dumps({k: round(v, 3) for k, v in row.items() if isinstance(v, float)}), flush=True)
   report["tasks"]["real"] = ev.evaluate(real)
@@ -184,7 +189,7 @@ def main(argv=None) -> int:
 
 def markdown(report: dict) -> str:
   cols = ["fid_k", "fid_g", "div_k", "div_g", "bas", "pfc", "jitter", "foot_skate"]
-  extra = ["traj_mean_cm", "traj_max_cm", "key_err_cm", "given_err_cm", "seam_jump_max", "step_ms"]
+  extra = ["traj_mean_cm", "traj_max_cm", "key_err_cm", "given_err_cm", "seam_jump_max", "step_ms", "x_real_time"]
   head = "| task | " + " | ".join(cols + extra) + " |\n|---|" + "---|" * (len(cols) + len(extra)) + "\n"
   lines = []
   for task, r in report["tasks"].items():

@@ -20,6 +20,7 @@ import { BeatTracker } from './beat-tracker.js';
 import { AvatarView } from './avatar-view.js';
 import { downloadBytes, motionToVrma } from './vrma-export.js';
 import { Directions } from './directions.js';
+import { editControls, runEdit } from './editor.js';
 
 const $ = (id) => document.getElementById(id);
 const params = new URLSearchParams(window.location.search);
@@ -70,7 +71,12 @@ let tracker = null;
 let lastControl = null;
 let lastEvent = null;
 let controlsApplied = 0;  // control_applied events on this page (events can share a frame index)
-let mode = 'idle';    // idle | file | mic | watch
+let mode = 'idle';    // idle | file | mic | watch | edit
+let lastSong = null;  // the last song file played (what an edit dances to)
+let editor = null;    // the server's editor description (api/model "editor"), null = none
+let editAbort = null;
+let editSource = null;  // the AudioBufferSourceNode playing an edited dance's song
+let lastEdit = null;    // {model_id, frames, windows, steps, compute_ms, audio_ms} of the last edit played
 // Frames arrive in bursts of one model step (4 frames, 133 ms): a clock driven by arrivals buffers a step.
 const kStepMs = 4000 / 30;
 
@@ -197,6 +203,10 @@ function stopAll() {
     connection.close();
   }
   connection = null;
+  if (editSource) {
+    try { editSource.stop(); } catch { /* not started */ }
+  }
+  editSource = null;
   clock = null;
   mode = 'idle';
   directions.setPerforming(false);
@@ -289,9 +299,94 @@ async function refreshSessions() {
 
 ui.file.addEventListener('change', () => {
   const file = ui.file.files[0];
-  if (file) playFile(file);
+  if (file) {
+    lastSong = file;
+    updateEditButton();
+    playFile(file);
+  }
   ui.file.value = '';
 });
+
+// ---- the diffusion editor -----------------------------------------------------------------------------
+
+function updateEditButton() {
+  const btn = $('edit-btn');
+  btn.disabled = !editor || !lastSong || Boolean(editAbort);
+  btn.title = !editor ? 'this server has no editor model' : !lastSong ? 'play a song file first' :
+    `dance ${lastSong.name} with ${editor.model_id}`;
+}
+
+async function playEdited(result, song) {
+  stopAll();
+  const ctx = audioContext();
+  await ctx.resume();
+  const decoded = await decodeSong(ctx, await song.arrayBuffer());
+  frames.clear();
+  recorder.start({ skeleton, fps: result.fps || 30, modelId: result.model_id });
+  for (const f of result.frames) {
+    frames.push(f);
+    recorder.push(f);
+  }
+  recorder.stop();
+  const src = ctx.createBufferSource();
+  src.buffer = decoded.buffer;
+  src.connect(ctx.destination);
+  const start = ctx.currentTime + 0.3;
+  src.start(start);
+  editSource = src;
+  clock = new AudioPlayoutClock(ctx, start);
+  mode = 'edit';
+  ui.stop.disabled = false;
+  src.onended = () => { if (editSource === src) setStatus(`edited dance ended (${song.name})`); };
+}
+
+async function startEdit() {
+  if (!lastSong || !editor) return;
+  const song = lastSong;
+  const status = $('edit-status');
+  const bar = $('edit-progress');
+  let request;
+  try {
+    const controls = editControls($('edit-mode').value, recorder.length ? recorder.toMotion() : null,
+      Number($('edit-from').value), Number($('edit-to').value));
+    request = { style: styleMix(ui.style.value), seed: Math.floor(Math.random() * 1e6),
+      steps: Math.max(0, Math.round(Number($('edit-steps').value) || 0)), audio_name: song.name };
+    if (controls) request.controls = controls;
+  } catch (err) {
+    status.textContent = err.message;
+    return;
+  }
+  editAbort = new AbortController();
+  updateEditButton();
+  $('edit-cancel').hidden = false;
+  bar.hidden = false;
+  bar.value = 0;
+  status.textContent = 'sending...';
+  try {
+    const result = await runEdit(await song.arrayBuffer(), request, (ev) => {
+      if (ev.type === 'queued') status.textContent = ev.position ? `waiting (${ev.position} ahead)` : 'starting...';
+      if (ev.type === 'progress') {
+        bar.value = ev.steps_total ? ev.steps_done / ev.steps_total : 0;
+        status.textContent = `denoising ${ev.steps_done} / ${ev.steps_total}`;
+      }
+    }, { signal: editAbort.signal });
+    lastEdit = { model_id: result.model_id, frames: result.frames.length, windows: result.windows,
+      steps: result.steps, compute_ms: result.compute_ms, audio_ms: result.audio_ms };
+    status.textContent = `${result.frames.length} frames in ${(result.compute_ms / 1000).toFixed(1)} s`;
+    setStatus(`edited: ${song.name} (${result.model_id})`, 'live');
+    await playEdited(result, song);
+  } catch (err) {
+    status.textContent = err.code === 'CANCELLED' ? 'cancelled' : `edit failed: ${err.message}`;
+  } finally {
+    editAbort = null;
+    bar.hidden = true;
+    $('edit-cancel').hidden = true;
+    updateEditButton();
+  }
+}
+
+$('edit-btn').addEventListener('click', startEdit);
+$('edit-cancel').addEventListener('click', () => editAbort?.abort());
 ui.mic.addEventListener('click', useMicrophone);
 ui.stop.addEventListener('click', () => { stopAll(); setStatus('stopped'); });
 ui.refresh.addEventListener('click', refreshSessions);
@@ -428,12 +523,16 @@ window.danceStats = () => ({
   },
 });
 window.danceResetDisplayTimer = () => displayTimer.reset();
+window.danceLastEdit = () => lastEdit;
 window.danceRecorder = recorder;
 window.danceAvatars = avatars;
 window.danceDirections = directions;
 
 fetchModel().then((model) => {
   setStyles(model.styles);
+  editor = model.editor ?? null;
+  $('edit-status').textContent = editor ? `editor ${editor.model_id}` : 'no editor on this server';
+  updateEditButton();
   ui.statLatency.textContent = model.latency_ms !== undefined ? `${Number(model.latency_ms).toFixed(0)} ms` : '-';
 }).catch((err) => console.info('api/model:', err.message));
 refreshSessions();

@@ -149,5 +149,86 @@ TEST_F(DanceGenerate, BadSettingsFailClearly) {
   EXPECT_EQ(r.exit_code, 2);
 }
 
+
+// The diffusion backend (docs/diffusion.md) on the repository's tiny SGMD model (random weights).
+class DanceGenerateDiffusion : public DanceGenerate {
+ protected:
+  std::string Editor() const { return "models/sgmd-tiny.dncw"; }
+};
+
+TEST_F(DanceGenerateDiffusion, DancesTheWholeSongFromFrameZero) {
+  const std::string out = Tmp("sgmd.json");
+  Result r = RunTool(absl::StrCat("--audio ", audio_, " --out ", out, " --model ", Editor(), " --seed 2 --steps 5"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("\"backend\":\"diffusion\""), std::string::npos) << r.output;
+  nlohmann::json doc = ReadJson(out);
+  EXPECT_EQ(doc["format"], "dance-motion/v1");
+  EXPECT_EQ(doc["positions"].size(), 90u);  // 3 s, frames 0..89
+  EXPECT_NEAR(doc["audio_offset_s"].get<double>(), 0.0, 1e-9);
+  EXPECT_EQ(doc["backend"], "diffusion");
+  EXPECT_EQ(doc["steps"], 5);
+  EXPECT_EQ(doc["model_id"], "sgmd-tiny");
+  // The same seed gives the same dance; --backend diffusion picks the same path.
+  const std::string again = Tmp("sgmd-again.json");
+  r = RunTool(absl::StrCat("--audio ", audio_, " --out ", again, " --backend diffusion --model ", Editor(),
+                           " --seed 2 --steps 5"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(ReadJson(again)["positions"], doc["positions"]);
+}
+
+TEST_F(DanceGenerateDiffusion, KeepsASeedMotionExactly) {
+  // The seed: the first second of a free dance, moved 2 m along +X.
+  const std::string free_out = Tmp("sgmd-free.json");
+  Result r = RunTool(absl::StrCat("--audio ", audio_, " --out ", free_out, " --model ", Editor(), " --steps 4"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  nlohmann::json seed = ReadJson(free_out);
+  nlohmann::json frames = nlohmann::json::array();
+  for (int i = 0; i < 30; ++i) {
+    nlohmann::json f = seed["positions"][i];
+    for (auto& p : f) p[0] = p[0].get<double>() + 2.0;
+    frames.push_back(f);
+  }
+  const std::string seed_path = Tmp("sgmd-seed.json");
+  std::ofstream(seed_path) << nlohmann::json{{"format", "dance-motion/v1"}, {"fps", 30}, {"positions", frames},
+                                             {"audio_offset_s", 0.0}}.dump();
+  const std::string out = Tmp("sgmd-seeded.json");
+  r = RunTool(absl::StrCat("--audio ", audio_, " --out ", out, " --model ", Editor(), " --steps 4 --seed-motion ",
+                           seed_path));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  nlohmann::json doc = ReadJson(out);
+  double worst = 0.0;
+  for (int i = 0; i < 30; ++i) {
+    for (int j = 0; j < 24; ++j) {
+      for (int k = 0; k < 3; ++k) {
+        worst = std::max(worst, std::abs(doc["positions"][i][j][k].get<double>() - frames[i][j][k].get<double>()));
+      }
+    }
+  }
+  EXPECT_LT(worst, 1e-4) << "the seed's joints moved by " << worst << " m";
+}
+
+TEST_F(DanceGenerateDiffusion, BadSettingsFailClearly) {
+  const std::string out = Tmp("sgmd-bad.json");
+  struct Case {
+    std::string flags, want;
+  };
+  for (const Case& c : std::vector<Case>{
+           {"--steps 0", "bad value for --steps"},
+           {"--steps 5000", "steps must be 1..1000"},
+           {"--overlap-s 9", "overlap must be below the window"},
+           {"--guidance -1", "guidance must be > 0"},
+           {"--codes-out x.npy", "--codes-out needs the token model"},
+           {"--style polka", "unknown style 'polka'"},
+       }) {
+    Result r = RunTool(absl::StrCat("--audio ", audio_, " --out ", out, " --model ", Editor(), " ", c.flags));
+    EXPECT_NE(r.exit_code, 0) << c.flags;
+    EXPECT_NE(r.output.find(c.want), std::string::npos) << c.flags << ": " << r.output;
+  }
+  // The diffusion flags on the token model.
+  Result r = RunTool(absl::StrCat("--audio ", audio_, " --out ", out, " --model ", model_, " --steps 10"));
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("for the diffusion backend"), std::string::npos) << r.output;
+}
+
 }  // namespace
 }  // namespace dance::engine

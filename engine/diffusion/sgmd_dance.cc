@@ -1,0 +1,287 @@
+#include "engine/diffusion/sgmd_dance.h"
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
+#include "engine/diffusion/ddim.h"
+#include "engine/diffusion/motion_vector.h"
+#include "engine/nn/status_macros.h"
+#include "engine/vq/foot_lock.h"
+#include "engine/vq/pose_reconstructor.h"
+
+namespace dance::engine {
+namespace {
+
+using audio::FeatureFrames;
+
+constexpr int kPelvis = 0;
+
+// The floor path's point at audio time t (linear between points); false outside its span.
+bool PathAt(const std::vector<TrajectoryPoint>& path, double t_s, double* x, double* z) {
+  if (path.size() < 2 || t_s < path.front().t_s || t_s > path.back().t_s) return false;
+  const auto it = std::upper_bound(path.begin(), path.end(), t_s,
+                                   [](double t, const TrajectoryPoint& p) { return t < p.t_s; });
+  if (it == path.end()) {
+    *x = path.back().x;
+    *z = path.back().z;
+    return true;
+  }
+  const TrajectoryPoint& b = *it;
+  const TrajectoryPoint& a = *(it - 1);
+  const double w = (t_s - a.t_s) / (b.t_s - a.t_s);
+  *x = a.x + w * (b.x - a.x);
+  *z = a.z + w * (b.z - a.z);
+  return true;
+}
+
+// The music input of the window starting at frame `start` (music_dim, n): per token its frames'
+// normalised features then PRE; frames past the song repeat its last frame.
+Eigen::MatrixXf WindowMusic(const SgmdModel& model, const FeatureFrames& song, int64_t start) {
+  const SgmdConfig& c = model.config();
+  const int f_dim = c.feature_dim, p_dim = c.pre_dim, k = c.frames_per_token;
+  Eigen::MatrixXf m(c.music_dim(), c.tokens());
+  const int64_t last = song.frames() - 1;
+  for (int i = 0; i < c.tokens(); ++i) {
+    for (int j = 0; j < k; ++j) {
+      const int64_t n = std::min<int64_t>(start + int64_t{k} * i + j, last);
+      float* col = m.col(i).data() + j * (f_dim + p_dim);
+      const float* f = song.features.data() + n * f_dim;
+      const float* p = song.pre.data() + n * p_dim;
+      for (int d = 0; d < f_dim; ++d) col[d] = (f[d] - model.music_mean()(d)) / model.music_std()(d);
+      for (int d = 0; d < p_dim; ++d) col[f_dim + d] = p[d];
+    }
+  }
+  return m;
+}
+
+// The window's canonical frame when nothing before it is known: the first frame's given pelvis and facing,
+// else the path's point there (facing +Z), else the world's.
+CanonicalFrame FirstFrame(const Controls& controls, int64_t m) {
+  if (controls.motion.KnownAt(m) & (JointMask{1} << kPelvis)) {
+    return FrameOf(controls.motion.positions[m - controls.motion.first_frame]);
+  }
+  CanonicalFrame f;
+  double x = 0.0, z = 0.0;
+  if (PathAt(controls.trajectory, m / 30.0, &x, &z)) {
+    f.x = x;
+    f.z = z;
+  }
+  return f;
+}
+
+// Known values (denormalised) and mask of one window from the controls (docs/diffusion.md section 6), for
+// its frames at or after `from` (the frames before come from the previous window).
+void ControlKnown(const Controls& controls, const CanonicalFrame& frame, int64_t start, int n_frames, int from,
+                  Eigen::MatrixXf& values, Eigen::MatrixXf& mask) {
+  const double cy = std::cos(frame.yaw), sy = std::sin(frame.yaw);
+  for (int i = from; i < n_frames; ++i) {
+    const int64_t m = start + i;
+    const JointMask known = controls.motion.KnownAt(m);
+    if (known != 0) {
+      const JointPositions local = ToFrame(controls.motion.positions[m - controls.motion.first_frame], frame);
+      const Eigen::VectorXf v = PoseVector(local);
+      if (known & (JointMask{1} << kPelvis)) {
+        values.col(i).segment(kMotionRoot, 5) = v.segment(kMotionRoot, 5);
+        mask.col(i).segment(kMotionRoot, 5).setOnes();
+      }
+      for (int j = 1; j < kNumJoints; ++j) {
+        if (!(known & (JointMask{1} << j))) continue;
+        const int d = kMotionLocal + 3 * (j - 1);
+        values.col(i).segment(d, 3) = v.segment(d, 3);
+        mask.col(i).segment(d, 3).setOnes();
+      }
+    }
+    if (controls.trajectory.empty() || (known & (JointMask{1} << kPelvis))) continue;
+    double x = 0.0, z = 0.0;
+    if (PathAt(controls.trajectory, m / 30.0, &x, &z)) {
+      // p' = R_y(-yaw) (p - o); R_y(a) = [[c, 0, s], [0, 1, 0], [-s, 0, c]]
+      const double dx = x - frame.x, dz = z - frame.z;
+      values(kMotionRoot + 0, i) = static_cast<float>(cy * dx - sy * dz);
+      values(kMotionRoot + 2, i) = static_cast<float>(sy * dx + cy * dz);
+      mask(kMotionRoot + 0, i) = 1.0f;
+      mask(kMotionRoot + 2, i) = 1.0f;
+    }
+  }
+  // Facings on the frames nearest the path's points that give one (where no given pelvis speaks).
+  for (const TrajectoryPoint& p : controls.trajectory) {
+    if (!p.facing) continue;
+    const int64_t i = static_cast<int64_t>(std::llround(p.t_s * 30.0)) - start;
+    if (i < from || i >= n_frames) continue;
+    if (controls.motion.KnownAt(start + i) & (JointMask{1} << kPelvis)) continue;
+    const double a = *p.facing - frame.yaw;
+    values(kMotionHeading + 0, i) = static_cast<float>(std::sin(a));
+    values(kMotionHeading + 1, i) = static_cast<float>(std::cos(a));
+    mask(kMotionHeading + 0, i) = 1.0f;
+    mask(kMotionHeading + 1, i) = 1.0f;
+  }
+}
+
+// Whether frame m's lower body is given (the foot lock leaves it alone).
+bool LowerGiven(const Controls& controls, int64_t m) {
+  return (controls.motion.KnownAt(m) & LowerMask()) != 0;
+}
+
+}  // namespace
+
+absl::StatusOr<FeatureFrames> SongFeatures(const audio::DecodedAudio& audio) {
+  audio::AudioFrontEndOptions options;
+  options.sample_rate = audio.sample_rate;
+  options.channels = audio.channels;
+  DANCE_ASSIGN_OR_RETURN(std::unique_ptr<audio::AudioFrontEnd> fe, audio::AudioFrontEnd::Create(options));
+  FeatureFrames all, part;
+  auto drain = [&]() {
+    fe->PopFrames(&part);
+    all.features.insert(all.features.end(), part.features.begin(), part.features.end());
+    all.pre.insert(all.pre.end(), part.pre.begin(), part.pre.end());
+    all.beat_times_s.insert(all.beat_times_s.end(), part.beat_times_s.begin(), part.beat_times_s.end());
+  };
+  constexpr int64_t kChunk = 1 << 16;
+  const int64_t total = audio.frames();
+  for (int64_t start = 0; start < total; start += kChunk) {
+    const int64_t n = std::min(kChunk, total - start);
+    DANCE_RETURN_IF_ERROR(fe->PushFloat(absl::MakeConstSpan(audio.samples.data() + start * audio.channels,
+                                                            static_cast<size_t>(n * audio.channels))));
+    drain();
+  }
+  DANCE_RETURN_IF_ERROR(fe->Flush());
+  drain();
+  return all;
+}
+
+absl::StatusOr<Eigen::VectorXf> SgmdStyleWeights(const SgmdModel& model,
+                                                 const std::vector<std::pair<std::string, float>>& mix) {
+  const int n = static_cast<int>(model.styles().size());
+  Eigen::VectorXf w = Eigen::VectorXf::Zero(n + 1);
+  double total = 0.0;
+  for (const auto& [name, weight] : mix) {
+    if (!(weight >= 0.0f) || !std::isfinite(weight)) {
+      return absl::InvalidArgumentError(absl::StrCat("style '", name, "': weight must be finite and >= 0, got ",
+                                                     weight));
+    }
+    int row = -1;
+    if (name == "none") row = n;
+    for (int i = 0; i < n && row < 0; ++i) {
+      if (model.styles()[i] == name) row = i;
+    }
+    if (row < 0) {
+      return absl::NotFoundError(absl::StrCat("unknown style '", name, "' (known: ", absl::StrJoin(model.styles(), ", "),
+                                              ", none)"));
+    }
+    w(row) += weight;
+    total += weight;
+  }
+  if (mix.empty()) {
+    w(n) = 1.0f;
+    total = 1.0;
+  }
+  if (!(total > 0.0)) return absl::InvalidArgumentError("style weights sum to 0");
+  w /= static_cast<float>(total);
+  return w;
+}
+
+absl::StatusOr<SgmdDance> GenerateSgmdDance(const SgmdModel& model, const FeatureFrames& song,
+                                            const SgmdDanceOptions& options) {
+  const SgmdConfig& c = model.config();
+  const SgmdSamplingDefaults& def = model.sampling_defaults();
+  SgmdDance out;
+  out.steps = options.steps > 0 ? options.steps : def.steps;
+  out.guidance = options.guidance > 0.0f ? options.guidance : def.guidance;
+  out.overlap_frames = options.overlap_frames >= 0 ? options.overlap_frames : def.overlap_frames;
+  if (out.steps < 1 || out.steps > c.diffusion_steps) {
+    return absl::InvalidArgumentError(absl::StrCat("steps must be 1..", c.diffusion_steps, ", got ", out.steps));
+  }
+  if (!(out.guidance > 0.0f) || !std::isfinite(out.guidance) || out.guidance > 100.0f) {
+    return absl::InvalidArgumentError(absl::StrCat("guidance must be in (0, 100], got ", out.guidance));
+  }
+  if (out.overlap_frames >= c.frames) {
+    return absl::InvalidArgumentError(absl::StrCat("overlap must be below the window (", c.frames,
+                                                   " frames), got ", out.overlap_frames));
+  }
+  if (options.steps < 0) return absl::InvalidArgumentError(absl::StrCat("steps must be >= 1, got ", options.steps));
+  if (options.guidance < 0.0f) {
+    return absl::InvalidArgumentError(absl::StrCat("guidance must be > 0, got ", options.guidance));
+  }
+  if (options.overlap_frames < -1) {
+    return absl::InvalidArgumentError(absl::StrCat("overlap must be >= 0, got ", options.overlap_frames));
+  }
+  DANCE_RETURN_IF_ERROR(ValidateControls(options.controls));
+  DANCE_ASSIGN_OR_RETURN(Eigen::VectorXf style_w, SgmdStyleWeights(model, options.style));
+  const Eigen::VectorXf sv = model.StyleVector(style_w);
+  const int64_t total = song.frames();
+  if (total == 0) return out;
+  if (song.pre.size() != static_cast<size_t>(total * c.pre_dim) || c.feature_dim != audio::kNumFeatures) {
+    return absl::InvalidArgumentError("song features do not match the model's feature layout");
+  }
+
+  const int n = c.frames;
+  std::vector<int64_t> starts = {0};
+  while (starts.back() + n < total) starts.push_back(std::min<int64_t>(starts.back() + n - out.overlap_frames, total - n));
+  out.windows = static_cast<int>(starts.size());
+  const int64_t all_steps = static_cast<int64_t>(starts.size()) * out.steps;
+
+  std::vector<JointPositions> world(static_cast<size_t>(std::max<int64_t>(total, n)));
+  int64_t done = 0;
+  std::mt19937_64 gen(options.seed);
+  const SgmdModel::Context none = model.NullContext();
+  bool cancelled = false;
+  for (size_t w = 0; w < starts.size() && !cancelled; ++w) {
+    const int64_t s = starts[w];
+    const int shared = static_cast<int>(std::max<int64_t>(0, done - s));
+    const CanonicalFrame frame = shared > 0 ? FrameOf(world[s]) : FirstFrame(options.controls, s);
+    Eigen::MatrixXf values = Eigen::MatrixXf::Zero(c.pose_dim, n);
+    Eigen::MatrixXf mask = Eigen::MatrixXf::Zero(c.pose_dim, n);
+    if (shared > 0) {
+      std::vector<JointPositions> prev(world.begin() + s, world.begin() + s + shared);
+      values.leftCols(shared) = MotionVectors(ToFrame(prev, frame));
+      mask.leftCols(shared).setOnes();
+    }
+    ControlKnown(options.controls, frame, s, n, shared, values, mask);
+    WindowKnown known;
+    if (mask.any()) {
+      known.mask = mask;
+      known.values = ((values.colwise() - model.pose_mean()).array().colwise() / model.pose_std().array()).matrix();
+      known.values = (known.values.array() * mask.array()).matrix();
+    }
+    const SgmdModel::Context context = model.EncodeMusic(WindowMusic(model, song, s));
+    Eigen::MatrixXf noise(c.pose_dim, n);
+    FillStandardNormal(gen, &noise);
+    const int64_t base = static_cast<int64_t>(w) * out.steps;
+    const Eigen::MatrixXf x = SampleWindow(
+        model, context, none, sv, noise, {.steps = out.steps, .guidance = out.guidance},
+        known.empty() ? nullptr : &known, [&](int done_steps, int) {
+          if (options.progress && !cancelled) cancelled = !options.progress(base + done_steps, all_steps);
+        });
+    if (cancelled) break;
+    const Eigen::MatrixXf v = ((x.array().colwise() * model.pose_std().array()).colwise() +
+                               model.pose_mean().array()).matrix();
+    for (int i = std::max(shared, 0); i < n && s + i < static_cast<int64_t>(world.size()); ++i) {
+      world[s + i] = FromFrame(PositionsOfVector(v.col(i)), frame);
+    }
+    done = s + n;
+  }
+  if (cancelled) return absl::CancelledError("the dance was cancelled");
+
+  // Finish the frames as the token model's: bone lengths (frames without given joints), the foot lock
+  // (frames whose lower body is free), rotations.
+  const PoseReconstructor rec(model.skeleton());
+  const FootLock lock(model.skeleton());
+  FootLockState lock_state;
+  out.frames.resize(static_cast<size_t>(total));
+  for (int64_t m = 0; m < total; ++m) {
+    PoseFrame& f = out.frames[m];
+    f.index = m;
+    f.time_s = m / 30.0;
+    f.positions = world[m];
+    if (options.controls.motion.KnownAt(m) == 0) rec.ProjectBoneLengths(f.positions);
+    if (options.foot_lock && !LowerGiven(options.controls, m)) lock.Apply(lock_state, &f.positions);
+    rec.JointRotations(f.positions, &f.rotations);
+    f.upper_code = -1;
+    f.lower_code = -1;
+  }
+  return out;
+}
+
+}  // namespace dance::engine

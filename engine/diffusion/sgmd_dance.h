@@ -1,0 +1,68 @@
+// A whole dance from SGMD (docs/diffusion.md sections 5 and 6): the song's features cut into windows that
+// agree on their overlaps, the controls turned into each window's known values and mask, every window
+// sampled by DDIM, and the frames finished as the token model's are (bone lengths, foot lock where the lower
+// body is free, joint rotations).
+//
+// Usage:
+//   ASSIGN_OR_RETURN(FeatureFrames song, SongFeatures(audio));        // the engine's features, whole song
+//   SgmdDanceOptions o;
+//   o.seed = 1;
+//   o.style = {{"waltz", 1.0f}};
+//   o.controls = controls;                                            // control_spec.h
+//   ASSIGN_OR_RETURN(SgmdDance d, GenerateSgmdDance(*model, song, o));
+//
+// Errors: InvalidArgument for bad options (steps outside 1..T, guidance not > 0, an overlap not below the
+// window, bad style weights, bad controls), NotFound for an unknown style (naming the known ones),
+// Cancelled when `progress` returns false. Thread safety: pure function of its arguments; one call uses one
+// thread.
+#ifndef DANCE_ENGINE_DIFFUSION_SGMD_DANCE_H_
+#define DANCE_ENGINE_DIFFUSION_SGMD_DANCE_H_
+
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "engine/audio/audio_front_end.h"
+#include "engine/audio/decoder.h"
+#include "engine/diffusion/sgmd_model.h"
+#include "engine/runtime/controls.h"
+#include "engine/runtime/pose_frame.h"
+
+namespace dance::engine {
+
+struct SgmdDanceOptions {
+  uint64_t seed = 0;
+  std::vector<std::pair<std::string, float>> style;  // empty = "none"
+  int steps = 0;            // DDIM steps; 0 = the model's default (sampling.steps)
+  float guidance = 0.0f;    // w; 0 = the model's default (sampling.guidance); 1 = no guidance
+  int overlap_frames = -1;  // frames two windows share; -1 = the model's default; 0..frames-1
+  Controls controls;
+  bool foot_lock = true;    // docs/model.md section 7, on frames whose lower body is not given
+  // Called after every denoising step with (steps done, steps in all windows); return false to cancel.
+  std::function<bool(int64_t, int64_t)> progress;
+};
+
+struct SgmdDance {
+  std::vector<PoseFrame> frames;  // one per feature frame; codes are -1 (the diffusion model has none)
+  int windows = 0;
+  int steps = 0;
+  float guidance = 1.0f;
+  int overlap_frames = 0;
+};
+
+// The engine's causal features of a whole decoded song (as dance-features computes them).
+absl::StatusOr<audio::FeatureFrames> SongFeatures(const audio::DecodedAudio& audio);
+
+// The style weights (n_styles + 1, the last "none") of a mix; an empty mix is "none".
+absl::StatusOr<Eigen::VectorXf> SgmdStyleWeights(const SgmdModel& model,
+                                                 const std::vector<std::pair<std::string, float>>& mix);
+
+absl::StatusOr<SgmdDance> GenerateSgmdDance(const SgmdModel& model, const audio::FeatureFrames& song,
+                                            const SgmdDanceOptions& options);
+
+}  // namespace dance::engine
+
+#endif  // DANCE_ENGINE_DIFFUSION_SGMD_DANCE_H_
