@@ -34,6 +34,11 @@ class DanceServiceStub(object):
                 request_serializer=dance_dot_v1_dot_dance__pb2.GetModelInfoRequest.SerializeToString,
                 response_deserializer=dance_dot_v1_dot_dance__pb2.ModelInfo.FromString,
                 )
+        self.Edit = channel.unary_stream(
+                '/dance.v1.DanceService/Edit',
+                request_serializer=dance_dot_v1_dot_dance__pb2.EditRequest.SerializeToString,
+                response_deserializer=dance_dot_v1_dot_dance__pb2.EditUpdate.FromString,
+                )
 
 
 class DanceServiceServicer(object):
@@ -79,6 +84,21 @@ class DanceServiceServicer(object):
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def Edit(self, request, context):
+        """Server streaming. Makes or edits a whole dance offline with the diffusion editor (SGMD,
+        docs/diffusion.md): a song, optionally a known dance with a mask of what to keep, and the same controls
+        as a stream header. The server answers EditUpdate.queued (the job's place in the queue, repeated as it
+        moves), progress as the denoising runs, and one EditUpdate.result, then OK. Edits are jobs on a few
+        worker threads (--edit-workers) with a bounded queue; a client cancelling the call frees its worker.
+        Status codes: INVALID_ARGUMENT (no or undecodable audio, too long, bad controls, mask or style, steps,
+        guidance or overlap out of range; the message names the field), RESOURCE_EXHAUSTED (queue full, or this
+        client already has --edit-max-per-client edits queued or running), UNIMPLEMENTED (no editor model
+        loaded: dance-server --editor-model), UNAUTHENTICATED, UNAVAILABLE (draining), CANCELLED.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_DanceServiceServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -101,6 +121,11 @@ def add_DanceServiceServicer_to_server(servicer, server):
                     servicer.GetModelInfo,
                     request_deserializer=dance_dot_v1_dot_dance__pb2.GetModelInfoRequest.FromString,
                     response_serializer=dance_dot_v1_dot_dance__pb2.ModelInfo.SerializeToString,
+            ),
+            'Edit': grpc.unary_stream_rpc_method_handler(
+                    servicer.Edit,
+                    request_deserializer=dance_dot_v1_dot_dance__pb2.EditRequest.FromString,
+                    response_serializer=dance_dot_v1_dot_dance__pb2.EditUpdate.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -177,5 +202,22 @@ class DanceService(object):
         return grpc.experimental.unary_unary(request, target, '/dance.v1.DanceService/GetModelInfo',
             dance_dot_v1_dot_dance__pb2.GetModelInfoRequest.SerializeToString,
             dance_dot_v1_dot_dance__pb2.ModelInfo.FromString,
+            options, channel_credentials,
+            insecure, call_credentials, compression, wait_for_ready, timeout, metadata)
+
+    @staticmethod
+    def Edit(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_stream(request, target, '/dance.v1.DanceService/Edit',
+            dance_dot_v1_dot_dance__pb2.EditRequest.SerializeToString,
+            dance_dot_v1_dot_dance__pb2.EditUpdate.FromString,
             options, channel_credentials,
             insecure, call_credentials, compression, wait_for_ready, timeout, metadata)
