@@ -163,4 +163,36 @@ absl::Status AudioFrontEnd::Restore(const AudioFrontEndSnapshot& snap) {
   return absl::OkStatus();
 }
 
+absl::StatusOr<FeatureFrames> ComputeSongFeatures(const DecodedAudio& audio, int64_t chunk_samples,
+                                                  int64_t* sanitized_samples) {
+  if (chunk_samples < 1) return absl::InvalidArgumentError("chunk_samples must be >= 1");
+  AudioFrontEndOptions options;
+  options.sample_rate = audio.sample_rate;
+  options.channels = audio.channels;
+  absl::StatusOr<std::unique_ptr<AudioFrontEnd>> fe = AudioFrontEnd::Create(options);
+  if (!fe.ok()) return fe.status();
+  FeatureFrames all, part;
+  auto drain = [&]() {
+    (*fe)->PopFrames(&part);
+    all.features.insert(all.features.end(), part.features.begin(), part.features.end());
+    all.pre.insert(all.pre.end(), part.pre.begin(), part.pre.end());
+    all.pre_input.insert(all.pre_input.end(), part.pre_input.begin(), part.pre_input.end());
+    all.beat_times_s.insert(all.beat_times_s.end(), part.beat_times_s.begin(), part.beat_times_s.end());
+  };
+  const int64_t total = audio.frames();
+  for (int64_t start = 0; start < total; start += chunk_samples) {
+    const int64_t n = std::min(chunk_samples, total - start);
+    if (absl::Status s = (*fe)->PushFloat(absl::MakeConstSpan(audio.samples.data() + start * audio.channels,
+                                                              static_cast<size_t>(n * audio.channels)));
+        !s.ok()) {
+      return s;
+    }
+    drain();
+  }
+  if (absl::Status s = (*fe)->Flush(); !s.ok()) return s;
+  drain();
+  if (sanitized_samples != nullptr) *sanitized_samples = (*fe)->sanitized_samples();
+  return all;
+}
+
 }  // namespace dance::engine::audio

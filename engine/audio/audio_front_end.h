@@ -28,6 +28,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "absl/types/span.h"
+#include "engine/audio/decoder.h"
 #include "engine/audio/feature_extractor.h"
 #include "engine/audio/feature_layout.h"
 #include "engine/audio/resampler.h"
@@ -113,6 +114,12 @@ class AudioFrontEnd {
   int64_t sanitized_samples_ = 0;
   bool flushed_ = false;
 };
+
+// Every frame of a whole decoded song, pushed in chunks of `chunk_samples` input frames (the features do not
+// depend on the chunking) and flushed at the end: what dance-features writes and the diffusion editor reads.
+// `sanitized_samples`, if set, receives AudioFrontEnd::sanitized_samples() at the end.
+absl::StatusOr<FeatureFrames> ComputeSongFeatures(const DecodedAudio& audio, int64_t chunk_samples = 1 << 16,
+                                                  int64_t* sanitized_samples = nullptr);
 
 }  // namespace dance::engine::audio
 

@@ -127,28 +127,7 @@ bool LowerGiven(const Controls& controls, int64_t m) {
 }  // namespace
 
 absl::StatusOr<FeatureFrames> SongFeatures(const audio::DecodedAudio& audio) {
-  audio::AudioFrontEndOptions options;
-  options.sample_rate = audio.sample_rate;
-  options.channels = audio.channels;
-  DANCE_ASSIGN_OR_RETURN(std::unique_ptr<audio::AudioFrontEnd> fe, audio::AudioFrontEnd::Create(options));
-  FeatureFrames all, part;
-  auto drain = [&]() {
-    fe->PopFrames(&part);
-    all.features.insert(all.features.end(), part.features.begin(), part.features.end());
-    all.pre.insert(all.pre.end(), part.pre.begin(), part.pre.end());
-    all.beat_times_s.insert(all.beat_times_s.end(), part.beat_times_s.begin(), part.beat_times_s.end());
-  };
-  constexpr int64_t kChunk = 1 << 16;
-  const int64_t total = audio.frames();
-  for (int64_t start = 0; start < total; start += kChunk) {
-    const int64_t n = std::min(kChunk, total - start);
-    DANCE_RETURN_IF_ERROR(fe->PushFloat(absl::MakeConstSpan(audio.samples.data() + start * audio.channels,
-                                                            static_cast<size_t>(n * audio.channels))));
-    drain();
-  }
-  DANCE_RETURN_IF_ERROR(fe->Flush());
-  drain();
-  return all;
+  return audio::ComputeSongFeatures(audio);
 }
 
 absl::StatusOr<Eigen::VectorXf> SgmdStyleWeights(const SgmdModel& model,
@@ -186,6 +165,13 @@ absl::StatusOr<SgmdDance> GenerateSgmdDance(const SgmdModel& model, const Featur
                                             const SgmdDanceOptions& options) {
   const SgmdConfig& c = model.config();
   const SgmdSamplingDefaults& def = model.sampling_defaults();
+  if (options.steps < 0) return absl::InvalidArgumentError(absl::StrCat("steps must be >= 1, got ", options.steps));
+  if (options.guidance < 0.0f) {
+    return absl::InvalidArgumentError(absl::StrCat("guidance must be > 0, got ", options.guidance));
+  }
+  if (options.overlap_frames < -1) {
+    return absl::InvalidArgumentError(absl::StrCat("overlap must be >= 0, got ", options.overlap_frames));
+  }
   SgmdDance out;
   out.steps = options.steps > 0 ? options.steps : def.steps;
   out.guidance = options.guidance > 0.0f ? options.guidance : def.guidance;
@@ -199,13 +185,6 @@ absl::StatusOr<SgmdDance> GenerateSgmdDance(const SgmdModel& model, const Featur
   if (out.overlap_frames >= c.frames) {
     return absl::InvalidArgumentError(absl::StrCat("overlap must be below the window (", c.frames,
                                                    " frames), got ", out.overlap_frames));
-  }
-  if (options.steps < 0) return absl::InvalidArgumentError(absl::StrCat("steps must be >= 1, got ", options.steps));
-  if (options.guidance < 0.0f) {
-    return absl::InvalidArgumentError(absl::StrCat("guidance must be > 0, got ", options.guidance));
-  }
-  if (options.overlap_frames < -1) {
-    return absl::InvalidArgumentError(absl::StrCat("overlap must be >= 0, got ", options.overlap_frames));
   }
   DANCE_RETURN_IF_ERROR(ValidateControls(options.controls));
   DANCE_ASSIGN_OR_RETURN(Eigen::VectorXf style_w, SgmdStyleWeights(model, options.style));

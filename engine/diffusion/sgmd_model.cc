@@ -150,19 +150,6 @@ absl::Status ReadTokens(const WeightsFile& f, const std::string& name, int64_t n
   return absl::OkStatus();
 }
 
-absl::Status ReadInt(const nlohmann::json& obj, const std::string& where, const char* key, int lo, int hi, int* out) {
-  if (!obj.contains(key) || !obj[key].is_number_integer()) {
-    return absl::InvalidArgumentError(absl::StrCat("weights metadata: ", where, ".", key, " missing"));
-  }
-  const int64_t v = obj[key].get<int64_t>();
-  if (v < lo || v > hi) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("weights metadata: ", where, ".", key, " = ", v, " outside [", lo, ", ", hi, "]"));
-  }
-  *out = static_cast<int>(v);
-  return absl::OkStatus();
-}
-
 absl::StatusOr<SgmdConfig> ReadConfig(const nlohmann::json& md) {
   if (!md.contains("sgmd") || !md["sgmd"].is_object()) {
     return absl::InvalidArgumentError("weights metadata: no \"sgmd\" object (the hyperparameters)");
@@ -182,7 +169,7 @@ absl::StatusOr<SgmdConfig> ReadConfig(const nlohmann::json& md) {
       {"n_music_layers", &c.n_music_layers, 0, 256}, {"n_styles", &c.n_styles, 0, 1024},
       {"style_dim", &c.style_dim, 1, 4096},      {"diffusion_steps", &c.diffusion_steps, 1, 1 << 20},
   };
-  for (const Field& f : fields) DANCE_RETURN_IF_ERROR(ReadInt(hp, "sgmd", f.key, f.lo, f.hi, f.out));
+  for (const Field& f : fields) DANCE_RETURN_IF_ERROR(ReadMetadataInt(hp, "sgmd", f.key, f.lo, f.hi, f.out));
   if (c.frames % c.frames_per_token != 0) {
     return absl::InvalidArgumentError(absl::StrCat("weights metadata: sgmd.frames ", c.frames,
                                                    " is not a multiple of frames_per_token ", c.frames_per_token));
@@ -207,9 +194,9 @@ absl::StatusOr<SgmdSamplingDefaults> ReadSampling(const nlohmann::json& md, cons
   if (!md.contains("sampling")) return s;
   const nlohmann::json& sm = md["sampling"];
   if (!sm.is_object()) return absl::InvalidArgumentError("weights metadata: sampling must be an object");
-  if (sm.contains("steps")) DANCE_RETURN_IF_ERROR(ReadInt(sm, "sampling", "steps", 1, c.diffusion_steps, &s.steps));
+  if (sm.contains("steps")) DANCE_RETURN_IF_ERROR(ReadMetadataInt(sm, "sampling", "steps", 1, c.diffusion_steps, &s.steps));
   if (sm.contains("overlap_frames")) {
-    DANCE_RETURN_IF_ERROR(ReadInt(sm, "sampling", "overlap_frames", 0, c.frames - 1, &s.overlap_frames));
+    DANCE_RETURN_IF_ERROR(ReadMetadataInt(sm, "sampling", "overlap_frames", 0, c.frames - 1, &s.overlap_frames));
   }
   if (sm.contains("guidance")) {
     const double g = sm["guidance"].is_number() ? sm["guidance"].get<double>() : -1.0;

@@ -5,22 +5,10 @@
 
 #include "absl/status/status.h"
 #include "absl/strings/str_cat.h"
+#include "engine/nn/weights_file.h"
 
 namespace dance::engine {
 namespace {
-
-absl::Status ReadInt(const nlohmann::json& hp, const char* key, int lo, int hi, int* out) {
-  if (!hp.contains(key) || !hp[key].is_number_integer()) {
-    return absl::InvalidArgumentError(absl::StrCat("weights metadata: hyperparameters.", key, " missing"));
-  }
-  const int64_t v = hp[key].get<int64_t>();
-  if (v < lo || v > hi) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("weights metadata: hyperparameters.", key, " = ", v, " outside [", lo, ", ", hi, "]"));
-  }
-  *out = static_cast<int>(v);
-  return absl::OkStatus();
-}
 
 bool ReadBool(const nlohmann::json& hp, const char* key, bool fallback) {
   return hp.contains(key) && hp[key].is_boolean() ? hp[key].get<bool>() : fallback;
@@ -50,7 +38,7 @@ absl::StatusOr<SeqConfig> SeqConfig::FromMetadata(const nlohmann::json& metadata
       {"music_lookahead_steps", &c.music_lookahead_steps, 0, 8},
   };
   for (const Field& f : fields) {
-    if (absl::Status s = ReadInt(hp, f.key, f.lo, f.hi, f.out); !s.ok()) return s;
+    if (absl::Status s = ReadMetadataInt(hp, "hyperparameters", f.key, f.lo, f.hi, f.out); !s.ok()) return s;
   }
   if (!hp.contains("style_mod_r") || !hp["style_mod_r"].is_number()) {
     return absl::InvalidArgumentError("weights metadata: hyperparameters.style_mod_r missing");

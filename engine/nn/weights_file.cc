@@ -117,6 +117,20 @@ absl::StatusOr<Tensor> ReadTensor(const nlohmann::json& entry, absl::Span<const 
 
 }  // namespace
 
+absl::Status ReadMetadataInt(const nlohmann::json& obj, const std::string& where, const char* key, int lo, int hi,
+                             int* out) {
+  if (!obj.contains(key) || !obj[key].is_number_integer()) {
+    return absl::InvalidArgumentError(absl::StrCat("weights metadata: ", where, ".", key, " missing"));
+  }
+  const int64_t v = obj[key].get<int64_t>();
+  if (v < lo || v > hi) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("weights metadata: ", where, ".", key, " = ", v, " outside [", lo, ", ", hi, "]"));
+  }
+  *out = static_cast<int>(v);
+  return absl::OkStatus();
+}
+
 std::string ShapeToString(const std::vector<int64_t>& shape) {
   return absl::StrCat("[", absl::StrJoin(shape, ", "), "]");
 }

@@ -68,6 +68,11 @@ class WeightsFile {
 // "[a, b, c]" for error messages.
 std::string ShapeToString(const std::vector<int64_t>& shape);
 
+// Reads the integer obj[key] (the metadata object `where`, e.g. "hyperparameters") into *out:
+// InvalidArgument "weights metadata: where.key missing" / "... = v outside [lo, hi]".
+absl::Status ReadMetadataInt(const nlohmann::json& obj, const std::string& where, const char* key, int lo, int hi,
+                             int* out);
+
 }  // namespace dance::engine
 
 #endif  // DANCE_ENGINE_NN_WEIGHTS_FILE_H_

@@ -161,32 +161,10 @@ nlohmann::json LayoutJson() {
 absl::Status Run(const Flags& flags) {
   absl::StatusOr<DecodedAudio> audio = DecodeAudioFile(flags.audio);
   if (!audio.ok()) return audio.status();
-  AudioFrontEndOptions options;
-  options.sample_rate = audio->sample_rate;
-  options.channels = audio->channels;
-  absl::StatusOr<std::unique_ptr<AudioFrontEnd>> fe = AudioFrontEnd::Create(options);
-  if (!fe.ok()) return fe.status();
-
-  FeatureFrames all, part;
-  auto drain = [&]() {
-    (*fe)->PopFrames(&part);
-    all.features.insert(all.features.end(), part.features.begin(), part.features.end());
-    all.pre.insert(all.pre.end(), part.pre.begin(), part.pre.end());
-    all.pre_input.insert(all.pre_input.end(), part.pre_input.begin(), part.pre_input.end());
-    all.beat_times_s.insert(all.beat_times_s.end(), part.beat_times_s.begin(),
-                            part.beat_times_s.end());
-  };
-  const int64_t total = audio->frames();
-  const int64_t step = flags.chunk_samples;
-  for (int64_t start = 0; start < total; start += step) {
-    const int64_t n = std::min(step, total - start);
-    absl::Status s = (*fe)->PushFloat(absl::MakeConstSpan(
-        audio->samples.data() + start * audio->channels, static_cast<size_t>(n * audio->channels)));
-    if (!s.ok()) return s;
-    drain();
-  }
-  if (absl::Status s = (*fe)->Flush(); !s.ok()) return s;
-  drain();
+  int64_t sanitized = 0;
+  absl::StatusOr<FeatureFrames> song = ComputeSongFeatures(*audio, flags.chunk_samples, &sanitized);
+  if (!song.ok()) return song.status();
+  const FeatureFrames& all = *song;
   const int64_t frames = all.frames();
 
   if (!flags.out.empty()) {
@@ -263,7 +241,7 @@ absl::Status Run(const Flags& flags) {
                               {"pre_dims", kPreDims},
                               {"tempo_bpm", std::round(tempo * 100.0) / 100.0},
                               {"tempo_median_bpm", std::round(median * 100.0) / 100.0},
-                              {"sanitized_samples", (*fe)->sanitized_samples()},
+                              {"sanitized_samples", sanitized},
                               {"beats_s", beats}};
     std::cout << summary.dump() << std::endl;
   }

@@ -5,11 +5,13 @@
 // cancelled edit freeing its worker.
 #include <cmath>
 #include <cstring>
+#include <functional>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
+#include "absl/synchronization/notification.h"
 #include "absl/time/clock.h"
 #include "gtest/gtest.h"
 #include "server/core/editor_port.h"
@@ -51,14 +53,17 @@ struct EditCall {
   bool got_result = false;
 };
 
+// `on_update`, if set, sees every update as it arrives (on the calling thread).
 EditCall RunEdit(dance::v1::DanceService::Stub* stub, const dance::v1::EditRequest& req,
-                 grpc::ClientContext* ctx = nullptr) {
+                 grpc::ClientContext* ctx = nullptr,
+                 const std::function<void(const dance::v1::EditUpdate&)>& on_update = nullptr) {
   grpc::ClientContext own;
   if (ctx == nullptr) ctx = &own;
   EditCall out;
   auto reader = stub->Edit(ctx, req);
   dance::v1::EditUpdate u;
   while (reader->Read(&u)) {
+    if (on_update) on_update(u);
     if (u.has_queued()) out.queued.push_back(u.queued());
     if (u.has_progress()) out.progress.push_back(u.progress());
     if (u.has_result()) {
@@ -206,15 +211,15 @@ TEST_F(EditTest, OneClientOneEditAndACancelledEditFreesItsWorker) {
   grpc::ClientContext long_ctx;
   dance::v1::EditRequest long_req = Request(60.0, 1, 1000);
   EditCall long_call;
-  std::thread runner([&] { long_call = RunEdit(stub_.get(), long_req, &long_ctx); });
-  // Wait until it runs (its first progress would be visible only to the runner: poll the per-client limit).
-  grpc::Status second;
-  for (int i = 0; i < 200; ++i) {
-    const EditCall c = RunEdit(stub_.get(), Request(1.0));
-    second = c.status;
-    if (second.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED) break;
-    absl::SleepFor(absl::Milliseconds(10));
-  }
+  absl::Notification accepted;  // the long edit is queued or running (its first update came)
+  std::thread runner([&] {
+    long_call = RunEdit(stub_.get(), long_req, &long_ctx, [&accepted](const dance::v1::EditUpdate&) {
+      if (!accepted.HasBeenNotified()) accepted.Notify();
+    });
+    if (!accepted.HasBeenNotified()) accepted.Notify();  // it failed: the assertions below say how
+  });
+  ASSERT_TRUE(accepted.WaitForNotificationWithTimeout(absl::Seconds(60)));
+  const grpc::Status second = RunEdit(stub_.get(), Request(1.0)).status;
   EXPECT_EQ(second.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << second.error_message();
   EXPECT_NE(second.error_message().find("already has"), std::string::npos) << second.error_message();
   long_ctx.TryCancel();

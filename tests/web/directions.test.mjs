@@ -11,7 +11,7 @@ import { copyFileSync, mkdtempSync, rmSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { after, before, test } from 'node:test';
-import { collectErrors, launchBrowser, repo, startServer, waitFor } from './harness.mjs';
+import { launchBrowser, openPage, repo, startServer, waitFor } from './harness.mjs';
 import { renderMusic, writeWav } from './music.mjs';
 
 const work = mkdtempSync(join(tmpdir(), 'dance-web-directions-'));
@@ -29,10 +29,7 @@ before(async () => {
   process.env.DANCE_MODEL = process.env.DANCE_MODEL || join(repo, 'models/default.dncw');
   server = await startServer();
   browser = await launchBrowser();
-  page = await browser.context.newPage();
-  errors = collectErrors(page);
-  await page.goto(server.url);
-  await page.waitForFunction(() => typeof window.danceStats === 'function');
+  ({ page, errors } = await openPage(browser, server.url));
 });
 
 after(async () => {

@@ -14,8 +14,7 @@ import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { after, before, test } from 'node:test';
 import {
-  collectErrors, launchBrowser, pixelDifference, startServer, waitFor,
-} from './harness.mjs';
+  collectErrors, launchBrowser, openPage, pixelDifference, startServer, waitFor } from './harness.mjs';
 import { renderMusic, writeWav } from './music.mjs';
 
 const work = mkdtempSync(join(tmpdir(), 'dance-web-test-'));
@@ -35,10 +34,7 @@ before(async () => {
   writeWav(song, renderMusic({ seconds: 90, bpm: 120, rate: 24000 }), 24000);
   server = await startServer();
   browser = await launchBrowser();
-  page = await browser.context.newPage();
-  errors = collectErrors(page);
-  await page.goto(server.url);
-  await page.waitForFunction(() => typeof window.danceStats === 'function');
+  ({ page, errors } = await openPage(browser, server.url));
 });
 
 after(async () => {

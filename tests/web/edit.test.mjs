@@ -9,7 +9,7 @@ import { mkdtempSync, rmSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { after, before, test } from 'node:test';
-import { collectErrors, launchBrowser, repo, startServer, waitFor } from './harness.mjs';
+import { launchBrowser, openPage, repo, startServer, waitFor } from './harness.mjs';
 import { renderMusic, writeWav } from './music.mjs';
 
 const work = mkdtempSync(join(tmpdir(), 'dance-web-edit-'));
@@ -22,14 +22,9 @@ const stats = () => page.evaluate(() => window.danceStats());
 
 before(async () => {
   writeWav(song, renderMusic({ seconds: 6, bpm: 120, rate: 24000 }), 24000);
-  process.env.DANCE_EDITOR_MODEL = join(repo, 'models/sgmd-tiny.dncw');
-  server = await startServer();
-  delete process.env.DANCE_EDITOR_MODEL;
+  server = await startServer({ editorModel: join(repo, 'models/sgmd-tiny.dncw') });
   browser = await launchBrowser();
-  page = await browser.context.newPage();
-  errors = collectErrors(page);
-  await page.goto(server.url);
-  await page.waitForFunction(() => typeof window.danceStats === 'function');
+  ({ page, errors } = await openPage(browser, server.url));
 });
 
 after(async () => {

@@ -54,10 +54,10 @@ async function waitHealthy(url, child, log, timeoutMs = 60000) {
 
 /**
  * Starts dance-server on free ports with the test model and web/dist as the web root (the diffusion
- * editor only when DANCE_EDITOR_MODEL names one).
+ * editor only when `editorModel` or DANCE_EDITOR_MODEL names one).
  * Resolves to {url, stop(), log}; stop() ends the process (SIGTERM, then SIGKILL after 5 s).
  */
-export async function startServer() {
+export async function startServer({ editorModel = process.env.DANCE_EDITOR_MODEL || 'off' } = {}) {
   if (process.env.DANCE_SERVER_URL) {
     const url = process.env.DANCE_SERVER_URL.replace(/\/?$/, '/');
     await waitHealthy(url, null, []);
@@ -71,7 +71,7 @@ export async function startServer() {
   const [grpcPort, httpPort] = [await freePort(), await freePort()];
   // Abseil flags: names with underscores.
   const args = [`--model=${model}`, `--port=${grpcPort}`, `--http_port=${httpPort}`, `--web_root=${webRoot}`,
-    `--editor_model=${process.env.DANCE_EDITOR_MODEL || 'off'}`];
+    `--editor_model=${editorModel}`];
   const child = spawn(binary, args, { stdio: ['ignore', 'pipe', 'pipe'] });
   const log = [];
   const keep = (d) => { log.push(d.toString()); if (log.length > 200) log.shift(); };
@@ -117,6 +117,18 @@ export function collectErrors(page) {
   page.on('console', (m) => { if (m.type() === 'error') errors.push(`console: ${m.text()}`); });
   page.on('pageerror', (e) => errors.push(`pageerror: ${e.message}`));
   return errors;
+}
+
+/**
+ * Opens `url` in a new page of `browser` and waits for the app; resolves to {page, errors} (errors as
+ * collectErrors).
+ */
+export async function openPage(browser, url) {
+  const page = await browser.context.newPage();
+  const errors = collectErrors(page);
+  await page.goto(url);
+  await page.waitForFunction(() => typeof window.danceStats === 'function');
+  return { page, errors };
 }
 
 /**

@@ -15,7 +15,7 @@ import { copyFileSync, existsSync, mkdtempSync, readFileSync, rmSync } from 'nod
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { after, before, test } from 'node:test';
-import { collectErrors, launchBrowser, pixelDifference, repo, startServer, waitFor } from './harness.mjs';
+import { launchBrowser, openPage, pixelDifference, repo, startServer, waitFor } from './harness.mjs';
 import { renderMusic, writeWav } from './music.mjs';
 
 const work = mkdtempSync(join(tmpdir(), 'dance-vrm-test-'));
@@ -31,10 +31,7 @@ before(async () => {
   writeWav(song, renderMusic({ seconds: 40, bpm: 120, rate: 24000 }), 24000);
   server = await startServer();
   browser = await launchBrowser();
-  page = await browser.context.newPage();
-  errors = collectErrors(page);
-  await page.goto(`${server.url}?avatar=vrm`);
-  await page.waitForFunction(() => typeof window.danceStats === 'function');
+  ({ page, errors } = await openPage(browser, `${server.url}?avatar=vrm`));
 });
 
 after(async () => {

@@ -20,6 +20,7 @@
 #include "engine/diffusion/sgmd_model.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
+#include "tests/engine/runtime/testing/golden_fixture.h"
 #include "tests/engine/runtime/testing/npy.h"
 
 namespace dance::engine {
@@ -31,14 +32,7 @@ using testing::ReadNpy;
 constexpr double kSingleCallTolerance = 1e-5;  // one encoder or denoiser call, the motion vector
 constexpr double kDdimTolerance = 1e-4;        // S denoiser calls chained through the sampler
 
-double NormalisedError(const float* a, const float* b, int64_t n) {
-  double max_diff = 0.0, max_ref = 0.0;
-  for (int64_t i = 0; i < n; ++i) {
-    max_diff = std::max(max_diff, std::abs(static_cast<double>(a[i]) - b[i]));
-    max_ref = std::max(max_ref, std::abs(static_cast<double>(b[i])));
-  }
-  return max_diff / std::max(1.0, max_ref);
-}
+using testing::NormalisedError;
 
 double NormalisedError(const Eigen::MatrixXf& mine, const NpyArray& ref) {
   EXPECT_EQ(mine.size(), ref.size());
@@ -46,17 +40,10 @@ double NormalisedError(const Eigen::MatrixXf& mine, const NpyArray& ref) {
   return NormalisedError(mine.data(), ref.data.data(), ref.size());
 }
 
-class Golden {
+// An SGMD fixture directory (sgmd.json).
+class Golden : public testing::GoldenFixture {
  public:
-  explicit Golden(std::filesystem::path dir) : dir_(std::move(dir)) {
-    std::ifstream f(dir_ / "sgmd.json");
-    index_ = nlohmann::json::parse(f);
-  }
-  NpyArray Array(const std::string& name) const {
-    absl::StatusOr<NpyArray> a = ReadNpy((dir_ / index_["arrays"][name]["file"].get<std::string>()).string());
-    EXPECT_TRUE(a.ok()) << name << ": " << a.status();
-    return a.ok() ? *a : NpyArray();
-  }
+  explicit Golden(std::filesystem::path dir) : GoldenFixture(std::move(dir), "sgmd.json") {}
   // A (rows, cols) row-major array as the engine's (cols, rows) matrix.
   Eigen::MatrixXf Matrix(const std::string& name) const {
     const NpyArray a = Array(name);
@@ -64,28 +51,20 @@ class Golden {
     if (a.shape.size() != 2) return {};
     return Eigen::Map<const Eigen::MatrixXf>(a.data.data(), a.shape[1], a.shape[0]);
   }
-  const nlohmann::json& index() const { return index_; }
-  std::string name() const { return dir_.filename().string(); }
-
- private:
-  std::filesystem::path dir_;
-  nlohmann::json index_;
 };
 
-std::vector<std::filesystem::path> FixtureDirs() {
-  std::vector<std::filesystem::path> out;
-  if (!std::filesystem::exists("tests/golden")) return out;
-  for (const auto& e : std::filesystem::directory_iterator("tests/golden")) {
-    if (std::filesystem::exists(e.path() / "sgmd.json")) out.push_back(e.path());
-  }
-  std::sort(out.begin(), out.end());
-  return out;
-}
+std::vector<std::filesystem::path> FixtureDirs() { return testing::GoldenDirs("sgmd.json"); }
 
 std::shared_ptr<const SgmdModel> LoadFixtureModel(const Golden& g) {
   absl::StatusOr<std::shared_ptr<const SgmdModel>> m = SgmdModel::Load(g.index()["model"].get<std::string>());
   EXPECT_TRUE(m.ok()) << m.status();
   return m.ok() ? *m : nullptr;
+}
+
+// The fixture's style weights as the model's style vector.
+Eigen::VectorXf InputStyle(const Golden& g, const SgmdModel& model) {
+  const NpyArray style = g.Array("input_style");
+  return model.StyleVector(Eigen::Map<const Eigen::VectorXf>(style.data.data(), style.size()));
 }
 
 std::vector<JointPositions> Positions(const NpyArray& a) {
@@ -168,8 +147,7 @@ TEST(SgmdGolden, DenoiseWithMusicAndWithMusicNull) {
     SCOPED_TRACE(g.name());
     std::shared_ptr<const SgmdModel> model = LoadFixtureModel(g);
     ASSERT_NE(model, nullptr);
-    const NpyArray style = g.Array("input_style");
-    const Eigen::VectorXf sv = model->StyleVector(Eigen::Map<const Eigen::VectorXf>(style.data.data(), style.size()));
+    const Eigen::VectorXf sv = InputStyle(g, *model);
     const Eigen::MatrixXf x_t = g.Matrix("input_x_t");
     const int t = g.index()["t"].get<int>();
     Eigen::MatrixXf x0;
@@ -190,8 +168,7 @@ TEST(SgmdGolden, DdimWindowGuidedWithKnownValuesAndFree) {
     SCOPED_TRACE(g.name());
     std::shared_ptr<const SgmdModel> model = LoadFixtureModel(g);
     ASSERT_NE(model, nullptr);
-    const NpyArray style = g.Array("input_style");
-    const Eigen::VectorXf sv = model->StyleVector(Eigen::Map<const Eigen::VectorXf>(style.data.data(), style.size()));
+    const Eigen::VectorXf sv = InputStyle(g, *model);
     const SgmdModel::Context c = model->EncodeMusic(g.Matrix("input_music"));
     const SgmdModel::Context none = model->NullContext();
     const Eigen::MatrixXf noise = g.Matrix("ddim_noise");

@@ -14,6 +14,7 @@
 #include "engine/vq/pose_reconstructor.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
+#include "tests/engine/runtime/testing/golden_fixture.h"
 #include "tests/engine/runtime/testing/npy.h"
 
 namespace dance::engine {
@@ -34,43 +35,15 @@ constexpr double kGreedyLogitTolerance = 1e-5;
 constexpr double kDecodeTolerance = 1e-5;  // the VQ decoder runs ~20 convs deep
 constexpr double kPositionTolerance = 1e-4;  // metres; the reference integrates in float64
 
-double NormalisedError(const float* a, const float* b, int64_t n) {
-  double max_diff = 0.0, max_ref = 0.0;
-  for (int64_t i = 0; i < n; ++i) {
-    max_diff = std::max(max_diff, std::abs(static_cast<double>(a[i]) - b[i]));
-    max_ref = std::max(max_ref, std::abs(static_cast<double>(b[i])));
-  }
-  return max_diff / std::max(1.0, max_ref);
-}
+using testing::NormalisedError;
 
-class Golden {
+// A token-model fixture directory (index.json).
+class Golden : public testing::GoldenFixture {
  public:
-  explicit Golden(std::filesystem::path dir) : dir_(std::move(dir)) {
-    std::ifstream f(dir_ / "index.json");
-    index_ = nlohmann::json::parse(f);
-  }
-  NpyArray Array(const std::string& name) const {
-    absl::StatusOr<NpyArray> a = ReadNpy((dir_ / index_["arrays"][name]["file"].get<std::string>()).string());
-    EXPECT_TRUE(a.ok()) << name << ": " << a.status();
-    return a.ok() ? *a : NpyArray();
-  }
-  const nlohmann::json& index() const { return index_; }
-  std::string name() const { return dir_.filename().string(); }
-
- private:
-  std::filesystem::path dir_;
-  nlohmann::json index_;
+  explicit Golden(std::filesystem::path dir) : GoldenFixture(std::move(dir), "index.json") {}
 };
 
-std::vector<std::filesystem::path> FixtureDirs() {
-  std::vector<std::filesystem::path> out;
-  if (!std::filesystem::exists("tests/golden")) return out;
-  for (const auto& e : std::filesystem::directory_iterator("tests/golden")) {
-    if (std::filesystem::exists(e.path() / "index.json")) out.push_back(e.path());
-  }
-  std::sort(out.begin(), out.end());
-  return out;
-}
+std::vector<std::filesystem::path> FixtureDirs() { return testing::GoldenDirs("index.json"); }
 
 std::shared_ptr<const Model> LoadFixtureModel(const Golden& g) {
   absl::StatusOr<std::shared_ptr<const Model>> m = LoadModel(g.index()["model"].get<std::string>());
