@@ -28,7 +28,7 @@ absl::Status WriteText(const std::string& path, const std::string& text) {
 }  // namespace
 
 nlohmann::json DanceToJson(const dance::v1::SessionInfo& info, const std::vector<dance::v1::PoseFrame>& frames,
-                           uint64_t seed) {
+                           uint64_t seed, const std::vector<double>& beat_times_s) {
   using nlohmann::json;
   const auto& sk = info.skeleton();
   json rest = json::array();
@@ -65,12 +65,22 @@ nlohmann::json DanceToJson(const dance::v1::SessionInfo& info, const std::vector
               {"session_id", info.session_id()},
               {"seed", seed}};
   if (!rotations.empty()) out["rotations"] = rotations;
+  if (!beat_times_s.empty()) out["beat_times_s"] = beat_times_s;
   return out;
 }
 
 absl::Status WriteDanceJson(const std::string& path, const dance::v1::SessionInfo& info,
-                            const std::vector<dance::v1::PoseFrame>& frames, uint64_t seed) {
-  return WriteText(path, DanceToJson(info, frames, seed).dump());
+                            const std::vector<dance::v1::PoseFrame>& frames, uint64_t seed,
+                            const std::vector<double>& beat_times_s) {
+  return WriteText(path, DanceToJson(info, frames, seed, beat_times_s).dump());
+}
+
+std::vector<double> BeatTimesOf(const std::vector<dance::v1::Event>& events) {
+  std::vector<double> out;
+  for (const dance::v1::Event& e : events) {
+    if (e.kind() == dance::v1::Event::KIND_BEAT) out.push_back(std::round(e.time_ms()) / 1000.0);
+  }
+  return out;
 }
 
 std::array<double, 3> QuaternionToEulerZXY(double w, double x, double y, double z) {
@@ -164,12 +174,13 @@ MotionClip ClipFromStream(const dance::v1::SessionInfo& info, const std::vector<
 }
 
 absl::Status WriteDanceFile(const std::string& path, const dance::v1::SessionInfo& info,
-                            const std::vector<dance::v1::PoseFrame>& frames, uint64_t seed) {
+                            const std::vector<dance::v1::PoseFrame>& frames, uint64_t seed,
+                            const std::vector<double>& beat_times_s) {
   const std::string lower = absl::AsciiStrToLower(path);
   if (absl::EndsWith(lower, ".bvh")) return WriteBvh(path, info, frames);
   GltfKind kind;
   if (GltfKindForPath(path, &kind)) return WriteMotionFile(path, ClipFromStream(info, frames));
-  return WriteDanceJson(path, info, frames, seed);
+  return WriteDanceJson(path, info, frames, seed, beat_times_s);
 }
 
 absl::Status ReadDanceJson(const std::string& path, dance::v1::SessionInfo* info,

@@ -29,10 +29,12 @@
 
 namespace dance::client {
 
+// beat_times_s: the stream's KIND_BEAT times (s, audio timeline), written as "beat_times_s" when not empty.
 nlohmann::json DanceToJson(const dance::v1::SessionInfo& info, const std::vector<dance::v1::PoseFrame>& frames,
-                           uint64_t seed);
+                           uint64_t seed, const std::vector<double>& beat_times_s = {});
 absl::Status WriteDanceJson(const std::string& path, const dance::v1::SessionInfo& info,
-                            const std::vector<dance::v1::PoseFrame>& frames, uint64_t seed);
+                            const std::vector<dance::v1::PoseFrame>& frames, uint64_t seed,
+                            const std::vector<double>& beat_times_s = {});
 std::string DanceToBvh(const dance::v1::SessionInfo& info, const std::vector<dance::v1::PoseFrame>& frames);
 absl::Status WriteBvh(const std::string& path, const dance::v1::SessionInfo& info,
                       const std::vector<dance::v1::PoseFrame>& frames);
@@ -40,9 +42,13 @@ absl::Status WriteBvh(const std::string& path, const dance::v1::SessionInfo& inf
 // The stream's skeleton and frames as a MotionClip (root = positions[0]; frames without rotations get
 // identity rotations).
 MotionClip ClipFromStream(const dance::v1::SessionInfo& info, const std::vector<dance::v1::PoseFrame>& frames);
-// Writes the dance in the format the extension names: .json (dance-motion/v1), .bvh, .glb, .gltf, .vrma.
+// Writes the dance in the format the extension names: .json (dance-motion/v1, with the beats), .bvh, .glb,
+// .gltf, .vrma.
 absl::Status WriteDanceFile(const std::string& path, const dance::v1::SessionInfo& info,
-                            const std::vector<dance::v1::PoseFrame>& frames, uint64_t seed);
+                            const std::vector<dance::v1::PoseFrame>& frames, uint64_t seed,
+                            const std::vector<double>& beat_times_s = {});
+// The beat times (s) of a stream's events (KIND_BEAT), in order.
+std::vector<double> BeatTimesOf(const std::vector<dance::v1::Event>& events);
 // Reads a dance-motion/v1 JSON file back as SessionInfo (skeleton, fps, model and session ids) and frames
 // (index, time_ms, positions, rotations, codes); InvalidArgument when it is not one.
 absl::Status ReadDanceJson(const std::string& path, dance::v1::SessionInfo* info,

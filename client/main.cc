@@ -250,7 +250,8 @@ int Perform() {
                                static_cast<long long>(fs.gaps));
   if (!absl::GetFlag(FLAGS_out).empty()) {
     absl::Status w = dance::client::WriteDanceFile(absl::GetFlag(FLAGS_out), stream.info(), stream.frames(),
-                                                   absl::GetFlag(FLAGS_seed));
+                                                   absl::GetFlag(FLAGS_seed),
+                                                   dance::client::BeatTimesOf(stream.events()));
     if (!w.ok()) return Fail(w);
     std::cout << "wrote " << absl::GetFlag(FLAGS_out) << "\n";
   }
@@ -276,6 +277,7 @@ int Watch() {
   dance::v1::DanceUpdate u;
   dance::v1::SessionInfo info;
   std::vector<dance::v1::PoseFrame> frames;
+  std::vector<dance::v1::Event> events;
   int64_t dropped = 0;
   const int limit = absl::GetFlag(FLAGS_frames);
   std::unique_ptr<dance::client::VmcStreamOut> vmc = MakeVmc();
@@ -288,6 +290,7 @@ int Watch() {
         return Fail(v);
       }
     }
+    if (u.has_event()) events.push_back(u.event());
     if (u.has_frame()) {
       if (vmc) vmc->OnFrame(u.frame());
       dropped += u.frame().dropped_before();
@@ -309,7 +312,8 @@ int Watch() {
   }
   std::cout << "watched " << frames.size() << " frames, dropped " << dropped << "\n";
   if (!absl::GetFlag(FLAGS_out).empty()) {
-    absl::Status w = dance::client::WriteDanceFile(absl::GetFlag(FLAGS_out), info, frames, 0);
+    absl::Status w = dance::client::WriteDanceFile(absl::GetFlag(FLAGS_out), info, frames, 0,
+                                                   dance::client::BeatTimesOf(events));
     if (!w.ok()) return Fail(w);
   }
   if (!absl::GetFlag(FLAGS_bvh).empty()) {

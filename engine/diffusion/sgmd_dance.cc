@@ -124,6 +124,53 @@ bool LowerGiven(const Controls& controls, int64_t m) {
   return (controls.motion.KnownAt(m) & LowerMask()) != 0;
 }
 
+// 1 at u = 0 down to 0 at u = 1, flat at both ends.
+double FadeOut(double u) { return 1.0 - u * u * (3.0 - 2.0 * u); }
+
+// The seam blend (SgmdDanceOptions::seam_blend_frames): per joint, at every frame where generated motion
+// starts after motion it did not make (a window's first new frame, the end of a given span) or ends before
+// a given frame, the offset between the generated frame and the constant-velocity continuation of the
+// other side is removed there and faded out over `k` generated frames. Given joints stay exactly given.
+void BlendSeams(const Controls& controls, const std::vector<int64_t>& window_seams, int k,
+                std::vector<JointPositions>& world, int64_t total) {
+  if (k <= 0 || total < 2) return;
+  auto given = [&](int64_t m, int j) { return (controls.motion.KnownAt(m) & (JointMask{1} << j)) != 0; };
+  // Frames b.. after a boundary (forward) or ..b before one (backward, dir -1): remove `offset` faded.
+  auto fade = [&](int64_t b, int dir, int j, const Eigen::Vector3f& offset) {
+    for (int i = 0; i < k; ++i) {
+      const int64_t m = b + dir * i;
+      if (m < 0 || m >= total || given(m, j)) break;
+      world[m][j] -= static_cast<float>(FadeOut(static_cast<double>(i) / k)) * offset;
+    }
+  };
+  // The continuation of frames a (the last one of the other side) and a - dir (the one before, if it is
+  // on the same side) into a + dir.
+  auto continuation = [&](int64_t a, int dir, int j, bool same_side) {
+    const int64_t before = a - dir;
+    if (same_side && before >= 0 && before < total) return Eigen::Vector3f(2.0f * world[a][j] - world[before][j]);
+    return world[a][j];
+  };
+  std::vector<int64_t> seams = window_seams;
+  std::sort(seams.begin(), seams.end());
+  size_t next_seam = 0;
+  for (int64_t m = 1; m < total; ++m) {
+    const bool window_seam = next_seam < seams.size() && seams[next_seam] == m;
+    if (window_seam) ++next_seam;
+    for (int j = 0; j < kNumJoints; ++j) {
+      const bool g0 = given(m - 1, j), g1 = given(m, j);
+      if (!g1 && (g0 || window_seam)) {
+        // Generated from m on, after frames it did not make.
+        const bool prev_same = m >= 2 && (window_seam || given(m - 2, j));
+        fade(m, +1, j, world[m][j] - continuation(m - 1, +1, j, prev_same));
+      } else if (!g0 && g1) {
+        // Generated up to m - 1, before a given frame.
+        const bool next_same = m + 1 < total && given(m + 1, j);
+        fade(m - 1, -1, j, world[m - 1][j] - continuation(m, -1, j, next_same));
+      }
+    }
+  }
+}
+
 }  // namespace
 
 absl::StatusOr<FeatureFrames> SongFeatures(const audio::DecodedAudio& audio) {
@@ -169,6 +216,9 @@ absl::StatusOr<SgmdDance> GenerateSgmdDance(const SgmdModel& model, const Featur
   if (options.guidance < 0.0f) {
     return absl::InvalidArgumentError(absl::StrCat("guidance must be > 0, got ", options.guidance));
   }
+  if (options.seam_blend_frames < 0) {
+    return absl::InvalidArgumentError(absl::StrCat("seam blend must be >= 0 frames, got ", options.seam_blend_frames));
+  }
   if (options.overlap_frames < -1) {
     return absl::InvalidArgumentError(absl::StrCat("overlap must be >= 0, got ", options.overlap_frames));
   }
@@ -202,6 +252,7 @@ absl::StatusOr<SgmdDance> GenerateSgmdDance(const SgmdModel& model, const Featur
   const int64_t all_steps = static_cast<int64_t>(starts.size()) * out.steps;
 
   std::vector<JointPositions> world(static_cast<size_t>(std::max<int64_t>(total, n)));
+  std::vector<int64_t> window_seams;  // each window's first new frame after the first window
   int64_t done = 0;
   std::mt19937_64 gen(options.seed);
   const SgmdModel::Context none = model.NullContext();
@@ -209,6 +260,7 @@ absl::StatusOr<SgmdDance> GenerateSgmdDance(const SgmdModel& model, const Featur
   for (size_t w = 0; w < starts.size() && !cancelled; ++w) {
     const int64_t s = starts[w];
     const int shared = static_cast<int>(std::max<int64_t>(0, done - s));
+    if (shared > 0 && done < total) window_seams.push_back(done);
     const CanonicalFrame frame = shared > 0 ? FrameOf(world[s]) : FirstFrame(options.controls, s);
     Eigen::MatrixXf values = Eigen::MatrixXf::Zero(c.pose_dim, n);
     Eigen::MatrixXf mask = Eigen::MatrixXf::Zero(c.pose_dim, n);
@@ -242,6 +294,7 @@ absl::StatusOr<SgmdDance> GenerateSgmdDance(const SgmdModel& model, const Featur
     done = s + n;
   }
   if (cancelled) return absl::CancelledError("the dance was cancelled");
+  BlendSeams(options.controls, window_seams, options.seam_blend_frames, world, total);
 
   // Finish the frames as the token model's: bone lengths (frames without given joints), the foot lock
   // (frames whose lower body is free), rotations.

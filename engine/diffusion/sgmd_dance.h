@@ -41,6 +41,10 @@ struct SgmdDanceOptions {
   int overlap_frames = -1;  // frames two windows share; -1 = the model's default; 0..frames-1
   Controls controls;
   bool foot_lock = true;    // docs/model.md section 7, on frames whose lower body is not given
+  // Seam blend (docs/diffusion.md section 5): where generated frames meet frames they did not make (the
+  // previous window's, or given joints), the jump against a constant-velocity continuation is faded out
+  // over this many generated frames, per joint; given joints are never moved. 0 = off.
+  int seam_blend_frames = 10;
   // Called after every denoising step with (steps done, steps in all windows); return false to cancel.
   std::function<bool(int64_t, int64_t)> progress;
 };

@@ -185,6 +185,15 @@ absl::StatusOr<SgmdConfig> ReadConfig(const nlohmann::json& md) {
   if (!std::isfinite(c.style_mod_r)) return absl::InvalidArgumentError("weights metadata: sgmd.style_mod_r not finite");
   // As SGMDConfig: r <= 0 means d^-0.5 (exported files carry the resolved value).
   if (c.style_mod_r <= 0.0f) c.style_mod_r = static_cast<float>(std::pow(static_cast<double>(c.d_model), -0.5));
+  if (hp.contains("prediction")) {
+    const nlohmann::json& p = hp["prediction"];
+    if (p == "v") {
+      c.prediction = SgmdConfig::Prediction::kV;
+    } else if (p != "x0") {
+      return absl::InvalidArgumentError(absl::StrCat("weights metadata: sgmd.prediction must be \"x0\" or \"v\", got ",
+                                                     p.dump()));
+    }
+  }
   return c;
 }
 
@@ -463,6 +472,12 @@ void SgmdModel::Denoise(const Eigen::MatrixXf& x_t, int t, const Context& contex
   x0->resize(c.pose_dim, c.frames);
   Eigen::Map<Eigen::MatrixXf> tokens_out(x0->data(), kd, n);
   w.out.Apply(h, tokens_out);
+  if (c.prediction == SgmdConfig::Prediction::kV) {
+    // x0 = sqrt(abar) x_t - sqrt(1 - abar) v, in float as the reference's (its schedule is float32).
+    const float abar = alphas_cumprod_[t];
+    const float a = std::sqrt(abar), b = std::sqrt(1.0f - abar);
+    x0->array() = a * x_t.array() - b * x0->array();
+  }
 }
 
 }  // namespace dance::engine

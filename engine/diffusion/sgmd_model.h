@@ -46,6 +46,10 @@ struct SgmdConfig {
   int style_dim = 64;
   float style_mod_r = 0.0f;
   int diffusion_steps = 1000;
+  // What the output layer gives: x0 itself, or v (x0 = sqrt(abar_t) x_t - sqrt(1 - abar_t) v; metadata
+  // sgmd.prediction "x0" (the default when absent) or "v").
+  enum class Prediction { kX0, kV };
+  Prediction prediction = Prediction::kX0;
   int tokens() const { return frames / frames_per_token; }
   int music_dim() const { return frames_per_token * (feature_dim + pre_dim); }
 };

@@ -109,6 +109,11 @@ class Session {
   absl::Status Step();
   // Appends the frames produced so far, in order, to `out` and forgets them.
   void PopFrames(std::vector<PoseFrame>* out);
+  // Appends the beats the causal tracker found in the audio pushed so far and not popped yet (seconds on
+  // the input timeline, ascending) to `out` and forgets them. A beat is known once its audio arrived, so
+  // it comes before the frames of its time (those wait for the model's lookahead). They travel in
+  // snapshots.
+  void PopBeats(std::vector<double>* out) { time_.TakeBeats(out); }
 
   // Changes the style from the next step on; InvalidArgument for an unknown name or a bad weight.
   absl::Status SetStyle(const StyleMix& style) { return ApplyStyle(style); }

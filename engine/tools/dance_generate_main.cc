@@ -83,6 +83,15 @@ constexpr char kUsage[] =
     "                      [--backend tokens|diffusion] [--steps N] [--overlap-s S]\n";
 
 // The frames as plain arrays for the glTF / VRMA writers.
+// The engine's beats within the song, rounded to the ms, for the file's "beat_times_s".
+std::vector<double> BeatTimes(const std::vector<double>& beats, double duration_s) {
+  std::vector<double> out;
+  for (double t : beats) {
+    if (t < duration_s) out.push_back(std::round(t * 1000.0) / 1000.0);
+  }
+  return out;
+}
+
 dance::client::MotionClip ClipOf(const Skeleton& skeleton, const std::vector<PoseFrame>& frames) {
   dance::client::MotionClip clip;
   clip.joint_names = skeleton.joint_names;
@@ -289,6 +298,7 @@ absl::Status RunDiffusion(const Flags& flags) {
                 {"foot_lock", options.foot_lock},
                 {"audio_file", flags.audio},
                 {"audio_duration_s", duration},
+                {"beat_times_s", BeatTimes(song->beat_times_s, duration)},
                 {"generator", "dance-generate"}};
   if (!control_names.empty()) info.extra["controls"] = control_names;
   const Skeleton& skeleton = (*model)->skeleton();
@@ -377,6 +387,8 @@ absl::Status Run(Flags flags) {
   s.PopFrames(&frames);
   const double duration = audio->duration_s();
   while (!frames.empty() && frames.back().time_s >= duration) frames.pop_back();
+  std::vector<double> beats;
+  s.PopBeats(&beats);
 
   DanceInfo info;
   info.model_id = (*model)->model_id();
@@ -395,6 +407,7 @@ absl::Status Run(Flags flags) {
                 {"audio_file", flags.audio},
                 {"audio_duration_s", duration},
                 {"latency_ms", s.LatencyMs()},
+                {"beat_times_s", BeatTimes(beats, duration)},
                 {"generator", "dance-generate"}};
   if (!control_names.empty()) info.extra["controls"] = control_names;
   if (absl::Status st = WriteDanceJson(flags.out, (*model)->skeleton(), frames, info); !st.ok()) return st;

@@ -129,6 +129,7 @@ class EngineSessionStream final : public EngineStream {
       have_root_ = true;
     }
   }
+  void PopBeats(std::vector<double>* out) override { session_->PopBeats(out); }
   absl::Status SetStyle(const StyleMix& style) override { return session_->SetStyle(style); }
   absl::Status SetSampling(const SamplingConfig& sampling) override {
     engine::SamplingOptions o = ToEngine(sampling);

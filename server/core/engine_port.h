@@ -148,6 +148,9 @@ class EngineStream {
   virtual int StepsReady() const = 0;
   // Appends the frames produced so far (in order) to *out.
   virtual void PopFrames(std::vector<FrameData>* out) = 0;
+  // Appends the beats found in the audio pushed so far and not popped yet (seconds on the input timeline,
+  // ascending) to *out. Engines without a beat tracker give none.
+  virtual void PopBeats(std::vector<double>* out) { (void)out; }
   virtual absl::Status SetStyle(const StyleMix& style) = 0;
   virtual absl::Status SetSampling(const SamplingConfig& sampling) = 0;
 

@@ -271,6 +271,7 @@ absl::Status LiveSession::Drain(absl::Time now) {
     PushEvent(EventKind::kWarning, absl::StrCat("pose ignored: ", pose_error.message()));
     last_pose_warning_ = now;
   }
+  PublishBeats();
   // A tempo-normalised model emits real frames as their audio arrives (not only after a step): send them,
   // timed from the last audio chunk drained (the one that released them).
   if (last_audio.has_value()) PublishFrames(now, &*last_audio);
@@ -309,6 +310,19 @@ void LiveSession::PushEvent(EventKind kind, std::string message) {
               settings_.config.sample_rate_hz;
   e.message = std::move(message);
   PublishOne(std::make_shared<const Update>(std::move(e)));
+}
+
+void LiveSession::PublishBeats() {
+  beat_buf_.clear();
+  stream_->PopBeats(&beat_buf_);
+  for (double t : beat_buf_) {
+    EventUpdate e;
+    e.kind = EventKind::kBeat;
+    e.time_ms = 1000.0 * t;
+    e.frame_index = std::llround(30.0 * t);
+    PublishOne(std::make_shared<const Update>(std::move(e)));
+  }
+  metrics_->beats_total.fetch_add(beat_buf_.size(), std::memory_order_relaxed);
 }
 
 void LiveSession::AfterStep(absl::Time now) {
@@ -426,6 +440,7 @@ absl::Status LiveSession::Complete(const absl::Status& requested) {
     ended_ = true;
   }
   if (status.ok()) {
+    PublishBeats();
     PublishFrames(absl::Now());  // the engine may flush a tail on EndOfAudio
     PublishOne(EndUpdateNow("end_of_audio"));
   }

@@ -163,6 +163,9 @@ class LiveSession {
   void Publish(const std::vector<UpdatePtr>& updates);
   void PublishOne(UpdatePtr update);
   void PushEvent(EventKind kind, std::string message);
+  // Publishes the beats the engine found in the audio drained so far as KIND_BEAT events (time_ms: the
+  // beat's audio time; frame_index: its 30 fps frame). They run ahead of the frames of their time.
+  void PublishBeats();
   UpdatePtr EndUpdateNow(const char* reason) const;
   absl::Status PushPcm(const InboxItem& item);
   void RecordTrigger(int64_t end_sample, absl::Time arrival);
@@ -209,6 +212,7 @@ class LiveSession {
   std::vector<float> f32_buf_;
   std::vector<int16_t> s16_buf_;
   std::vector<FrameData> frame_buf_;
+  std::vector<double> beat_buf_;
   std::vector<UpdatePtr> publish_buf_;
 };
 

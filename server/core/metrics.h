@@ -53,6 +53,7 @@ struct ServerMetrics {
   std::atomic<uint64_t> viewers_started_total{0};
   std::atomic<int64_t> viewers_active{0};            // gauge: live gRPC + WebSocket viewers
   std::atomic<uint64_t> frames_total{0};              // frames produced by the engine
+  std::atomic<uint64_t> beats_total{0};               // KIND_BEAT events published
   std::atomic<uint64_t> viewer_frames_dropped_total{0};
   std::atomic<uint64_t> audio_samples_total{0};       // input sample frames received
   std::atomic<uint64_t> steps_total{0};

@@ -53,6 +53,7 @@ std::string RenderPrometheus(const ServerMetrics& m, int active_sessions, int ma
           m.sessions_rejected_total.load());
   counter("dance_viewers_started_total", "Watch subscriptions accepted.", m.viewers_started_total.load());
   counter("dance_frames_total", "Pose frames produced.", m.frames_total.load());
+  counter("dance_beats_total", "Beats detected and sent as KIND_BEAT events.", m.beats_total.load());
   counter("dance_viewer_frames_dropped_total", "Frames skipped for slow viewers.",
           m.viewer_frames_dropped_total.load());
   counter("dance_audio_samples_total", "Input audio sample frames received.", m.audio_samples_total.load());

@@ -111,6 +111,24 @@ TEST(DanceFile, JsonFollowsDanceMotionV1) {
   EXPECT_NEAR(j["audio_offset_s"].get<double>(), 4.0 / 30.0, 1e-9);
   EXPECT_EQ(j["rotations"][1][23].size(), 4u);
   EXPECT_EQ(j["seed"], 42);
+  EXPECT_FALSE(j.contains("beat_times_s"));  // a stream without beats
+}
+
+TEST(DanceFile, BeatEventsBecomeTheFilesBeatTimes) {
+  std::vector<dance::v1::Event> events(3);
+  events[0].set_kind(dance::v1::Event::KIND_BEAT);
+  events[0].set_time_ms(500.4);
+  events[1].set_kind(dance::v1::Event::KIND_WARNING);  // not a beat
+  events[1].set_time_ms(700.0);
+  events[2].set_kind(dance::v1::Event::KIND_BEAT);
+  events[2].set_time_ms(1000.0);
+  const std::vector<double> beats = BeatTimesOf(events);
+  ASSERT_EQ(beats.size(), 2u);
+  EXPECT_DOUBLE_EQ(beats[0], 0.5);
+  EXPECT_DOUBLE_EQ(beats[1], 1.0);
+  const auto j = DanceToJson(Info(), Frames(2), 1, beats);
+  ASSERT_EQ(j["beat_times_s"].size(), 2u);
+  EXPECT_DOUBLE_EQ(j["beat_times_s"][1].get<double>(), 1.0);
 }
 
 }  // namespace

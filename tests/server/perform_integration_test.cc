@@ -1,5 +1,6 @@
 // Integration: a real dance-server (real engine, tiny model) on port 0, real gRPC channels.
 #include <atomic>
+#include <cmath>
 #include <functional>
 #include <map>
 #include <string>
@@ -61,6 +62,39 @@ TEST(PerformIntegration, FullSessionProducesEveryFrameInOrder) {
     EXPECT_GT(f.trigger_sample_end(), 0);
   }
   EXPECT_NEAR(r.end.audio_ms(), 3000.0, 1e-6);
+}
+
+std::vector<double> BeatMs(const std::vector<dance::v1::Event>& events) {
+  std::vector<double> out;
+  for (const auto& e : events) {
+    if (e.kind() == dance::v1::Event::KIND_BEAT) out.push_back(e.time_ms());
+  }
+  return out;
+}
+
+TEST(PerformIntegration, BeatsArriveAsEventsOnTheClicks) {
+  ServerHarness h;
+  auto stub = h.NewStub();
+  const std::vector<float> audio = TestSignal(10.0, 24000);  // clicks every 500 ms
+  PerformResult r = RunPerform(stub.get(), audio, 24000, /*seed=*/3, /*chunk_frames=*/2400);
+  ASSERT_TRUE(r.status.ok()) << r.status.error_message();
+  const std::vector<double> beats = BeatMs(r.events);
+  ASSERT_GE(beats.size(), 12u);
+  int late = 0, on_click = 0;
+  for (const auto& e : r.events) {
+    if (e.kind() != dance::v1::Event::KIND_BEAT) continue;
+    EXPECT_EQ(e.frame_index(), std::llround(e.time_ms() * 30.0 / 1000.0));
+    if (e.time_ms() < 4000.0) continue;
+    ++late;
+    on_click += std::abs(e.time_ms() - 500.0 * std::round(e.time_ms() / 500.0)) < 40.0;
+  }
+  EXPECT_GE(late, 10);  // 6 s of clicks at 2 a second
+  EXPECT_GE(on_click, late - 1) << late - on_click << " of " << late << " beats after 4 s off the clicks";
+  for (size_t i = 1; i < beats.size(); ++i) ASSERT_GT(beats[i], beats[i - 1]);
+  // The same beats however the audio is chunked (the engine's tracker is chunking-invariant).
+  PerformResult other = RunPerform(stub.get(), audio, 24000, /*seed=*/3, /*chunk_frames=*/1777);
+  ASSERT_TRUE(other.status.ok());
+  EXPECT_EQ(BeatMs(other.events), beats);
 }
 
 TEST(PerformIntegration, ServerDanceEqualsTheEngineRunDirectly) {
@@ -274,6 +308,7 @@ TEST(PerformIntegration, WatcherReceivesTheSameFrames) {
 
   // The watcher subscribes before any audio, so it must see every frame the performer sees.
   std::vector<dance::v1::PoseFrame> watched;
+  std::vector<dance::v1::Event> watched_events;
   bool watch_info = false, watch_end = false;
   grpc::Status watch_status;
   absl::Notification subscribed;
@@ -290,13 +325,14 @@ TEST(PerformIntegration, WatcherReceivesTheSameFrames) {
         subscribed.Notify();
       }
       if (u.has_frame()) watched.push_back(u.frame());
+      if (u.has_event()) watched_events.push_back(u.event());
       if (u.has_end()) watch_end = true;
     }
     watch_status = reader->Finish();
     if (!subscribed.HasBeenNotified()) subscribed.Notify();
   });
   subscribed.WaitForNotification();
-  const std::vector<float> audio = TestSignal(2.0, 24000);
+  const std::vector<float> audio = TestSignal(4.0, 24000);
   for (size_t off = 0; off < audio.size(); off += 2400) {
     req.Clear();
     req.mutable_audio()->set_sample_offset(static_cast<int64_t>(off));
@@ -308,9 +344,11 @@ TEST(PerformIntegration, WatcherReceivesTheSameFrames) {
   ASSERT_TRUE(stream->Write(req));
   stream->WritesDone();
   std::vector<dance::v1::PoseFrame> performed;
+  std::vector<dance::v1::Event> performed_events;
   dance::v1::DanceUpdate u;
   while (stream->Read(&u)) {
     if (u.has_frame()) performed.push_back(u.frame());
+    if (u.has_event()) performed_events.push_back(u.event());
   }
   ASSERT_TRUE(stream->Finish().ok());
   watcher.join();
@@ -324,6 +362,9 @@ TEST(PerformIntegration, WatcherReceivesTheSameFrames) {
     EXPECT_EQ(watched[i].positions(5), performed[i].positions(5));
     EXPECT_EQ(watched[i].dropped_before(), 0);
   }
+  // Viewers get the beats too (a watching page pulses on them).
+  EXPECT_FALSE(BeatMs(performed_events).empty());
+  EXPECT_EQ(BeatMs(watched_events), BeatMs(performed_events));
 }
 
 TEST(PerformIntegration, ListSessionsAndModelInfo) {

@@ -161,6 +161,8 @@ test('a second page watches the session from the picker', async () => {
   const rate = b.frameRateConnection;
   assert.ok(rate > 0.7 * b.streamFps, `viewer got ${rate.toFixed(1)} frames/s`);
   assert.equal(await viewer.$eval('#style-select', (el) => el.disabled), true, 'a viewer cannot steer');
+  // The viewer streams no audio: its beat pulse is the server's beats alone (4 s at 120 BPM: 8).
+  assert.ok(b.beatsShown >= 5, `viewer showed ${b.beatsShown} beat pulses in 4 s`);
   await viewer.close();
   assert.deepEqual(viewerErrors, []);
 });

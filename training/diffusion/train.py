@@ -77,6 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
   ap.add_argument("--heads", type=int, default=4)
   ap.add_argument("--frames", type=int, default=150)
   ap.add_argument("--dropout", type=float, default=0.1)
+  ap.add_argument("--prediction", choices=("x0", "v"), default="v",
+                  help="the output's parameterisation (v: x0 = sqrt(abar) x_t - sqrt(1 - abar) out)")
   ap.add_argument("--no-mirror", action="store_true")
   ap.add_argument("--val-every", type=int, default=250)
   ap.add_argument("--ckpt-every", type=int, default=250)
@@ -153,7 +155,8 @@ def main(argv: list[str] | None = None) -> None:
   split = td.load_split()
   styles = td.run_styles(split)
   cfg = SGMDConfig(d_model=args.d_model, n_layers=args.layers, n_music_layers=args.music_layers,
-                   n_heads=args.heads, frames=args.frames, n_styles=len(styles), dropout=args.dropout)
+                   n_heads=args.heads, frames=args.frames, n_styles=len(styles), dropout=args.dropout,
+                   prediction=args.prediction)
   t0 = time.time()
   train = WindowData.load(td.paired_ids(split["train"]), cfg.frames, cfg.frames_per_token, mirror=not args.no_mirror)
   val = WindowData.load(td.paired_ids(split["validation"]), cfg.frames, cfg.frames_per_token, mirror=False)

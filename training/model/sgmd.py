@@ -1,7 +1,7 @@
 """SGMD: the style-guided motion diffusion editor (docs/diffusion.md, the exact definition; the second paper,
 section III). A transformer denoiser over one window of motion (150 frames = 5 s), conditioned on the
 window's music (the engine's features), a style vector (Style Modulation) and the diffusion step (FiLM).
-It predicts the clean motion x0 from the noised x_t.
+It predicts the clean motion x0 from the noised x_t (directly, or through v: SGMDConfig.prediction).
 
     model = SGMD(SGMDConfig())
     x0_hat = model(x_t, t, music, style_w, keep_music)   # (B, N, D), (B,), (B, N/2, 2 M), (B, S+1), (B,)
@@ -34,6 +34,7 @@ class SGMDConfig:
   style_dim: int = 64
   style_mod_r: float = 0.0      # 0 = d_model^-0.5
   diffusion_steps: int = 1000   # T (the training schedule; sampling uses a subset)
+  prediction: str = "x0"        # what the output layer gives: "x0", or "v" (x0 = sqrt(abar) x_t - sqrt(1-abar) v)
   dropout: float = 0.1          # training only
 
   def __post_init__(self):
@@ -43,6 +44,8 @@ class SGMDConfig:
       raise ValueError("frames must be a multiple of frames_per_token")
     if self.d_model % self.n_heads or self.d_model % 2:
       raise ValueError("d_model must be even and a multiple of n_heads")
+    if self.prediction not in ("x0", "v"):
+      raise ValueError(f"prediction must be 'x0' or 'v', got {self.prediction!r}")
 
   @property
   def tokens(self) -> int:
@@ -197,4 +200,8 @@ class SGMD(nn.Module):
     sv = style_w @ self.style_table
     for blk in self.blocks:
       x = blk(x, c, cond, sv)
-    return self.out(self.norm_f(x)).reshape(b, nf, dd)
+    y = self.out(self.norm_f(x)).reshape(b, nf, dd)
+    if cfg.prediction == "v":  # the v parameterisation: at low noise x0 is x_t by construction
+      abar = self.alphas_cumprod[t][:, None, None]
+      return abar.sqrt() * x_t - (1 - abar).sqrt() * y
+    return y

@@ -16,7 +16,6 @@ import { Stage, isSoftwareGl } from './stage.js';
 import { FrameTimer, RateMeter } from './stats.js';
 import { FileStreamer, MicStreamer, decodeSong } from './audio-input.js';
 import { fetchModel, fetchSessions, sessionLabel } from './sessions.js';
-import { BeatTracker } from './beat-tracker.js';
 import { AvatarView } from './avatar-view.js';
 import { downloadBytes, motionToVrma } from './vrma-export.js';
 import { Directions } from './directions.js';
@@ -66,8 +65,6 @@ let beatsShown = 0;
 const recentBeats = [];  // audio times of the last pulses shown
 let firstFrameAt = 0;    // performance.now() of the connection's first and latest frames
 let lastFrameAt = 0;
-let serverBeats = false;  // once the server sends beats, the page's own tracker is ignored
-let tracker = null;
 let lastControl = null;
 let lastEvent = null;
 let controlsApplied = 0;  // control_applied events on this page (events can share a frame index)
@@ -118,9 +115,7 @@ function newConnection() {
     },
     onBeat: (msg) => {
       if (c !== connection) return;
-      if (!serverBeats) beats = [];
-      serverBeats = true;
-      beats.push(msg.time_ms);
+      beats.push(msg.time_ms);  // the server's beat (KIND_BEAT), cued on the playout clock below
     },
     onEvent: (msg) => {
       if (c !== connection) return;
@@ -149,16 +144,9 @@ function newConnection() {
   });
   connection = c;
   firstFrameAt = lastFrameAt = 0;
-  serverBeats = false;
-  tracker = null;
   return c;
 }
 
-/** The page's own beat tracker over the audio it streams (see beat-tracker.js). */
-function trackBeats(sampleRate) {
-  tracker = new BeatTracker(sampleRate, (timeMs) => { if (!serverBeats) beats.push(timeMs); });
-  return (chunk) => tracker?.push(chunk);
-}
 
 /** Style and temperature change a session we perform; a watched session belongs to its performer. */
 function enableControls(on) {
@@ -233,7 +221,6 @@ async function playFile(file) {
     const info = await c.perform({ sampleRate: 24000, ...currentSettings() });
     directions.setPerforming(true);
     streamer = new FileStreamer(ctx, song);
-    streamer.onChunk = trackBeats(24000);
     const delayS = (Number(info.latency_ms) || 0) / 1000 + Number(ui.jitter.value) / 1000;
     clock = new AudioPlayoutClock(ctx, streamer.start(c, delayS));
     setStatus(`live: ${file.name} (session ${info.session_id ?? '?'})`, 'live');
@@ -257,7 +244,6 @@ async function useMicrophone() {
     clock = new ArrivalPlayoutClock({ bufferMs: kStepMs + Number(ui.jitter.value) / 2 });
     await c.perform({ sampleRate: mic.sampleRate, ...currentSettings() });
     directions.setPerforming(true);
-    mic.onChunk = trackBeats(mic.sampleRate);
     mic.start(c);
     ui.micMeter.hidden = false;
   } catch (err) {
@@ -509,7 +495,6 @@ window.danceStats = () => ({
   lastControl,
   lastEvent,
   controlsApplied,
-  trackerBpm: tracker ? tracker.bpm : null,
   style: ui.style.value,
   styles: Array.from(ui.style.options, (o) => o.value),
   dancerBox: stage.projectBox(avatars.active ? avatars.jointPoints() : dancer.jointPoints()),

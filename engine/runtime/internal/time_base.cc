@@ -106,6 +106,7 @@ void TimeBase::CollectFrames(std::vector<PoseFrame>* out) {
   const int64_t n = popped_.frames();
   if (n == 0) return;
   TimeBaseState& s = state_;
+  s.beats_s.insert(s.beats_s.end(), popped_.beat_times_s.begin(), popped_.beat_times_s.end());
   s.pending_features.insert(s.pending_features.end(), popped_.features.begin(), popped_.features.end());
   s.pending_pre.insert(s.pending_pre.end(), popped_.pre.begin(), popped_.pre.end());
   if (warped()) {
@@ -257,6 +258,11 @@ absl::Status TimeBase::Restore(const TimeBaseSnapshot& snapshot) {
   return absl::OkStatus();
 }
 
+void TimeBase::TakeBeats(std::vector<double>* out) {
+  out->insert(out->end(), state_.beats_s.begin(), state_.beats_s.end());
+  state_.beats_s.clear();
+}
+
 void TimeBase::Reset(const ResolvedStyle& style) {
   front_end_->Reset();
   popped_.Clear();
@@ -269,7 +275,8 @@ int64_t TimeBase::Bytes() const {
   n += static_cast<int64_t>((s.pending_features.capacity() + s.pending_pre.capacity()) * sizeof(float));
   n += static_cast<int64_t>(s.warp.source.size() * (sizeof(int64_t) + sizeof(double)) +
                             s.warp.starts.size() * sizeof(double) +
-                            s.warp.poses.size() * (sizeof(s.warp.poses[0]) + sizeof(s.warp.pose_codes[0])));
+                            s.warp.poses.size() * (sizeof(s.warp.poses[0]) + sizeof(s.warp.pose_codes[0])) +
+                            s.beats_s.capacity() * sizeof(double));
   return n;
 }
 

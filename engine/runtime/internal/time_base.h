@@ -66,6 +66,7 @@ struct TimeBaseState {
   bool ended = false;
   WarpState warp;
   double bar_frames = 0.0;              // bar clock period in warped frames (0 = no bar clock)
+  std::vector<double> beats_s;          // beats the tracker found and TakeBeats has not handed out, s
 };
 
 struct TimeBaseSnapshot {
@@ -100,6 +101,10 @@ class TimeBase {
   // returning its slot to be written; EmitWarped then appends every real frame now ready to `out`.
   std::array<Eigen::Vector3f, 24>& AddWarpedPose(std::pair<int, int> codes);
   void EmitWarped(std::vector<PoseFrame>* out);
+
+  // Appends the beats detected since the last call (seconds on the input timeline, ascending; the causal
+  // tracker's, as the audio that shows them arrives) to `out` and forgets them.
+  void TakeBeats(std::vector<double>* out);
 
   // A new style from the next frame on: its reference tempo (the clock's octave is chosen afresh when it
   // changes) and bar clock.

@@ -2,6 +2,7 @@
 // Status naming the problem. Plus the small pure parts of the model's API.
 #include "engine/diffusion/sgmd_model.h"
 
+#include <cmath>
 #include <string>
 
 #include "absl/strings/match.h"
@@ -26,6 +27,22 @@ absl::Status LoadEdited(const std::string& name, Edit edit) {
   const std::string path = ::testing::TempDir() + "/" + name + ".dncw";
   EXPECT_TRUE(w.WriteFile(path).ok());
   return SgmdModel::Load(path).status();
+}
+
+// The same, returning the model.
+template <typename Edit>
+std::shared_ptr<const SgmdModel> LoadEditedModel(const std::string& name, Edit edit) {
+  absl::StatusOr<WeightsFile> f = WeightsFile::Load(kTiny);
+  EXPECT_TRUE(f.ok()) << f.status();
+  if (!f.ok()) return nullptr;
+  WeightsWriter w(f->metadata());
+  for (const auto& [tensor_name, t] : f->tensors()) w.Add(tensor_name, t.shape, t.data);
+  edit(w);
+  const std::string path = ::testing::TempDir() + "/" + name + ".dncw";
+  EXPECT_TRUE(w.WriteFile(path).ok());
+  absl::StatusOr<std::shared_ptr<const SgmdModel>> m = SgmdModel::Load(path);
+  EXPECT_TRUE(m.ok()) << m.status();
+  return m.ok() ? *m : nullptr;
 }
 
 TEST(SgmdModelLoad, TinyModelAndItsMetadata) {
@@ -53,6 +70,7 @@ TEST(SgmdModelLoad, TinyModelAndItsMetadata) {
   EXPECT_EQ(model.pose_std().size(), 78);
   EXPECT_EQ(model.music_mean().size(), 108);
   EXPECT_EQ(model.skeleton().parents[7], 4);
+  EXPECT_EQ(c.prediction, SgmdConfig::Prediction::kV);
 }
 
 TEST(SgmdModelLoad, TokenModelIsNotAnSgmdModel) {
@@ -99,9 +117,37 @@ TEST(SgmdModelLoad, BadMetadataIsNamed) {
   s = LoadEdited("styles", [](WeightsWriter& w) { w.metadata()["styles"].erase(0); });
   EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << s;
   EXPECT_TRUE(absl::StrContains(s.message(), "styles")) << s;
+  s = LoadEdited("prediction", [](WeightsWriter& w) { w.metadata()["sgmd"]["prediction"] = "eps"; });
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << s;
+  EXPECT_TRUE(absl::StrContains(s.message(), "sgmd.prediction")) << s;
   s = LoadEdited("steps", [](WeightsWriter& w) { w.metadata()["sampling"]["steps"] = 0; });
   EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << s;
   EXPECT_TRUE(absl::StrContains(s.message(), "sampling.steps")) << s;
+}
+
+// The same weights read as an x0 model (the layer's output as it is, the default for files without
+// sgmd.prediction) and as a v model: x0 = sqrt(abar) x_t - sqrt(1 - abar) out. The v path is checked
+// against PyTorch by the golden test; this ties the x0 path to it.
+TEST(SgmdModel, VPredictionIsTheOutputLayerReadThroughTheSchedule) {
+  std::shared_ptr<const SgmdModel> v = LoadEditedModel("as_v", [](WeightsWriter&) {});
+  std::shared_ptr<const SgmdModel> x0 =
+      LoadEditedModel("as_x0", [](WeightsWriter& w) { w.metadata()["sgmd"].erase("prediction"); });
+  ASSERT_NE(v, nullptr);
+  ASSERT_NE(x0, nullptr);
+  EXPECT_EQ(x0->config().prediction, SgmdConfig::Prediction::kX0);
+  const SgmdConfig& c = v->config();
+  const Eigen::MatrixXf x_t = Eigen::MatrixXf::Random(c.pose_dim, c.frames);
+  const Eigen::VectorXf sv = v->StyleVector(Eigen::VectorXf::Unit(c.n_styles + 1, 2));
+  const Eigen::MatrixXf music = Eigen::MatrixXf::Random(c.music_dim(), c.tokens());
+  for (int t : {0, 250, 999}) {
+    Eigen::MatrixXf from_v, out;
+    v->Denoise(x_t, t, v->EncodeMusic(music), sv, &from_v);
+    x0->Denoise(x_t, t, x0->EncodeMusic(music), sv, &out);
+    const float abar = static_cast<float>(v->alphas_cumprod()[t]);
+    const Eigen::MatrixXf want = std::sqrt(abar) * x_t - std::sqrt(1.0f - abar) * out;
+    EXPECT_LE((from_v - want).cwiseAbs().maxCoeff(), 1e-5f) << "t " << t;
+    EXPECT_GT((from_v - out).cwiseAbs().maxCoeff(), 1e-2f) << "t " << t;  // the two readings differ
+  }
 }
 
 TEST(SgmdModel, StyleVectorMixesTableRows) {

@@ -93,6 +93,67 @@ TEST(Session, EmitsWholePeriodsFromFrameFour) {
   }
 }
 
+// Runs `audio` in chunks of `chunk`, popping the beats after every push; returns them all.
+std::vector<double> BeatsOfStream(Session& s, const std::vector<float>& audio, size_t chunk) {
+  std::vector<double> beats;
+  for (size_t pos = 0; pos < audio.size(); pos += chunk) {
+    const size_t n = std::min(chunk, audio.size() - pos);
+    EXPECT_TRUE(s.PushAudio(absl::MakeConstSpan(audio.data() + pos, n)).ok());
+    DrainSteps(s);
+    s.PopBeats(&beats);
+  }
+  s.EndOfAudio();
+  DrainSteps(s);
+  s.PopBeats(&beats);
+  return beats;
+}
+
+TEST(Session, PopBeatsGivesTheTrackersBeatsOnTheClicks) {
+  auto model = LoadTinyModel();
+  const std::vector<float> audio = testing::ClickAudio(12.0, 120.0);  // clicks at k x 0.5 s
+  auto a = MakeSession(model, Opts(1));
+  const std::vector<double> beats = BeatsOfStream(*a, audio, 1000);
+  ASSERT_GE(beats.size(), 14u);
+  int on_click = 0, late = 0;
+  for (size_t i = 0; i < beats.size(); ++i) {
+    if (i > 0) ASSERT_GT(beats[i], beats[i - 1]);
+    if (beats[i] < 4.0) continue;  // the tracker settles first
+    ++late;
+    const double k = std::round(beats[i] / 0.5);
+    on_click += std::abs(beats[i] - 0.5 * k) < 0.04;
+  }
+  EXPECT_GE(late, 14);  // 8 s of clicks at 2 a second
+  EXPECT_GE(on_click, late - 1) << "beats after 4 s off the clicks: " << late - on_click << " of " << late;
+  // No beat twice, nothing popped twice, and the same beats however the audio is chunked.
+  auto b = MakeSession(model, Opts(1));
+  EXPECT_EQ(BeatsOfStream(*b, audio, 4321), beats);
+  std::vector<double> none;
+  b->PopBeats(&none);
+  EXPECT_TRUE(none.empty());
+}
+
+TEST(Session, UnpoppedBeatsTravelInSnapshotsAndResetForgetsThem) {
+  auto model = LoadTinyModel();
+  const std::vector<float> audio = testing::ClickAudio(8.0, 120.0);
+  auto s = MakeSession(model, Opts(2));
+  ASSERT_TRUE(s->PushAudio(absl::MakeConstSpan(audio.data(), audio.size() / 2)).ok());
+  DrainSteps(*s);
+  absl::StatusOr<SessionSnapshot> snap = s->Snapshot();
+  ASSERT_TRUE(snap.ok());
+  std::vector<double> original, restored;
+  s->PopBeats(&original);
+  ASSERT_FALSE(original.empty());
+  auto fresh = MakeSession(model, Opts(2));
+  ASSERT_TRUE(fresh->Restore(*snap).ok());
+  fresh->PopBeats(&restored);
+  EXPECT_EQ(restored, original);
+  ASSERT_TRUE(fresh->Restore(*snap).ok());
+  fresh->Reset();
+  std::vector<double> after_reset;
+  fresh->PopBeats(&after_reset);
+  EXPECT_TRUE(after_reset.empty());
+}
+
 TEST(Session, CodesVaryWithSampling) {
   auto model = LoadTinyModel();
   auto s = MakeSession(model, Opts(5));

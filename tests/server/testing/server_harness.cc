@@ -104,6 +104,7 @@ PerformResult RunPerform(dance::v1::DanceService::Stub* stub, const std::vector<
   while (stream->Read(&u)) {
     if (u.has_info()) r.info = u.info();
     if (u.has_frame()) r.frames.push_back(u.frame());
+    if (u.has_event()) r.events.push_back(u.event());
     if (u.has_end()) {
       r.end = u.end();
       r.got_end = true;

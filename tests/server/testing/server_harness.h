@@ -42,6 +42,7 @@ struct PerformResult {
   grpc::Status status;
   dance::v1::SessionInfo info;
   std::vector<dance::v1::PoseFrame> frames;
+  std::vector<dance::v1::Event> events;
   dance::v1::StreamEnd end;
   bool got_end = false;
 };

@@ -144,6 +144,8 @@ TEST(JsonCodec, OtherUpdatesAsDocumented) {
   const UpdatePtr warning = std::make_shared<const Update>(EventUpdate{EventKind::kWarning, 0.0, 0, "w"});
   EXPECT_EQ(UpdateToJson(*warning, true, 0, &scratch),
             R"({"frame_index":0,"kind":"warning","message":"w","time_ms":0.0,"type":"event"})");
+  const UpdatePtr beat = std::make_shared<const Update>(EventUpdate{EventKind::kBeat, 1500.25, 45, ""});
+  EXPECT_EQ(UpdateToJson(*beat, true, 0, &scratch), R"({"time_ms":1500.25,"type":"beat"})");
   const UpdatePtr end = std::make_shared<const Update>(EndUpdate{180, 6000.0, "end_of_audio"});
   EXPECT_EQ(UpdateToJson(*end, true, 0, &scratch),
             R"({"audio_ms":6000.0,"frames":180,"reason":"end_of_audio","type":"end"})");

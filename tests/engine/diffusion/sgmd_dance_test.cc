@@ -1,0 +1,103 @@
+// GenerateSgmdDance on the tiny SGMD model (random weights, 8-frame windows sharing 4): the seam blend
+// continues the motion at every window seam and into and out of given frames, and never moves a given joint.
+#include "engine/diffusion/sgmd_dance.h"
+
+#include <memory>
+#include <random>
+#include <vector>
+
+#include "gtest/gtest.h"
+
+namespace dance::engine {
+namespace {
+
+constexpr char kTiny[] = "models/sgmd-tiny.dncw";
+
+std::shared_ptr<const SgmdModel> Tiny() {
+  absl::StatusOr<std::shared_ptr<const SgmdModel>> m = SgmdModel::Load(kTiny);
+  EXPECT_TRUE(m.ok()) << m.status() << " (run from the source root)";
+  return m.ok() ? *m : nullptr;
+}
+
+// Song features of `frames` frames: random but fixed.
+audio::FeatureFrames Song(const SgmdModel& model, int64_t frames) {
+  audio::FeatureFrames f;
+  std::mt19937 gen(5);
+  std::normal_distribution<float> normal(0.0f, 1.0f);
+  f.features.resize(static_cast<size_t>(frames * model.config().feature_dim));
+  f.pre.resize(static_cast<size_t>(frames * model.config().pre_dim));
+  for (float& v : f.features) v = normal(gen);
+  for (float& v : f.pre) v = normal(gen);
+  return f;
+}
+
+// How far joint j of frame m is from the constant-velocity continuation of frames m - 2 and m - 1.
+float Kink(const std::vector<PoseFrame>& frames, int64_t m, int j) {
+  const Eigen::Vector3f want = 2.0f * frames[m - 1].positions[j] - frames[m - 2].positions[j];
+  return (frames[m].positions[j] - want).norm();
+}
+
+SgmdDanceOptions Options(int blend) {
+  SgmdDanceOptions o;
+  o.steps = 3;
+  o.foot_lock = false;  // the blend alone (the foot lock moves the legs afterwards)
+  o.seam_blend_frames = blend;
+  return o;
+}
+
+TEST(SgmdDance, SeamBlendContinuesThePelvisAtEveryWindowSeam) {
+  std::shared_ptr<const SgmdModel> model = Tiny();
+  ASSERT_NE(model, nullptr);
+  const audio::FeatureFrames song = Song(*model, 40);
+  absl::StatusOr<SgmdDance> raw = GenerateSgmdDance(*model, song, Options(0));
+  absl::StatusOr<SgmdDance> blended = GenerateSgmdDance(*model, song, Options(3));
+  ASSERT_TRUE(raw.ok()) << raw.status();
+  ASSERT_TRUE(blended.ok()) << blended.status();
+  ASSERT_EQ(raw->overlap_frames, 4);
+  ASSERT_EQ(blended->frames.size(), 40u);
+  // Windows start every 4 frames, so frames 8, 12, ... are each window's first new frame.
+  float raw_worst = 0.0f;
+  for (int64_t m = 8; m < 40; m += 4) {
+    raw_worst = std::max(raw_worst, Kink(raw->frames, m, 0));
+    EXPECT_LE(Kink(blended->frames, m, 0), 1e-4f) << "seam at frame " << m;
+  }
+  EXPECT_GT(raw_worst, 1e-2f) << "the unblended seams already continue: the test shows nothing";
+  // The first window is untouched: nothing before it to meet.
+  for (int64_t m = 0; m < 8; ++m) {
+    EXPECT_EQ(blended->frames[m].positions[0], raw->frames[m].positions[0]) << "frame " << m;
+  }
+}
+
+TEST(SgmdDance, SeamBlendMeetsGivenFramesAndNeverMovesThem) {
+  std::shared_ptr<const SgmdModel> model = Tiny();
+  ASSERT_NE(model, nullptr);
+  const audio::FeatureFrames song = Song(*model, 40);
+  // Frames 17..22 given whole (a span to keep, as inpainting's known part).
+  std::vector<JointPositions> span(6);
+  for (size_t i = 0; i < span.size(); ++i) {
+    for (int j = 0; j < kNumJoints; ++j) span[i][j] = Eigen::Vector3f(0.1f * i, 0.9f + 0.01f * j, -0.05f * j);
+  }
+  SgmdDanceOptions o = Options(4);
+  o.controls.motion = SeedTrack(span, 17);
+  absl::StatusOr<SgmdDance> d = GenerateSgmdDance(*model, song, o);
+  ASSERT_TRUE(d.ok()) << d.status();
+  for (size_t i = 0; i < span.size(); ++i) {
+    for (int j = 0; j < kNumJoints; ++j) {
+      ASSERT_LE((d->frames[17 + i].positions[j] - span[i][j]).norm(), 1e-5f) << "frame " << 17 + i << " joint " << j;
+    }
+  }
+  // Into the span: frame 16 continues backwards from 18 and 17; out of it: frame 23 continues 21 and 22.
+  const Eigen::Vector3f into = 2.0f * d->frames[17].positions[0] - d->frames[18].positions[0];
+  EXPECT_LE((d->frames[16].positions[0] - into).norm(), 1e-4f);
+  EXPECT_LE(Kink(d->frames, 23, 0), 1e-4f);
+}
+
+TEST(SgmdDance, NegativeSeamBlendIsRefused) {
+  std::shared_ptr<const SgmdModel> model = Tiny();
+  ASSERT_NE(model, nullptr);
+  absl::StatusOr<SgmdDance> d = GenerateSgmdDance(*model, Song(*model, 16), Options(-1));
+  EXPECT_EQ(d.status().code(), absl::StatusCode::kInvalidArgument) << d.status();
+}
+
+}  // namespace
+}  // namespace dance::engine
