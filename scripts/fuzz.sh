@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Builds the libFuzzer targets with the `fuzz` preset (clang) and runs the audio decode + feature fuzzer
-# for a bounded time, then the controls' file readers (motion_fuzz) for half that. Usage: scripts/fuzz.sh [SECONDS]   (default 60). Exit status 0 = no crash found.
+# for a bounded time, then the controls' file readers (motion_fuzz) and the browser's JSON messages
+# (web_json_fuzz: /ws/perform and /ws/edit, with the server's validators) for half that each. Usage: scripts/fuzz.sh [SECONDS]   (default 60). Exit status 0 = no crash found.
 # Seeds: small WAV/FLAC/OGG/MP3 files made with sox, plus raw-PCM inputs; crashes land in build-fuzz/crashes/
 # (or $DANCE_FUZZ_BUILD_DIR/crashes/ when that variable names another build directory).
 set -euo pipefail
@@ -9,7 +10,7 @@ seconds="${1:-60}"
 jobs="${DANCE_JOBS:-2}"
 dir="${DANCE_FUZZ_BUILD_DIR:-build-fuzz}"   # the preset's binaryDir unless overridden
 cmake --preset fuzz -B "$dir" >/dev/null
-cmake --build "$dir" -j "$jobs" --target audio_fuzz motion_fuzz
+cmake --build "$dir" -j "$jobs" --target audio_fuzz motion_fuzz web_json_fuzz
 
 corpus="$dir/corpus"
 seeds="$dir/seeds"
@@ -35,4 +36,9 @@ mkdir -p "$dir/motion_corpus"
 ASAN_OPTIONS=detect_leaks=1 "$dir/bin/motion_fuzz" "$dir/motion_corpus" tests/fuzz/motion_seeds \
   -max_total_time="$(( (seconds + 1) / 2 ))" -max_len=65536 -rss_limit_mb=2048 -timeout=20 \
   -artifact_prefix="$dir/crashes/" -print_final_stats=1
-echo "fuzz.sh: no crash in ${seconds}s (audio) + $(( (seconds + 1) / 2 ))s (motion)"
+# The browser's JSON messages, seeded with one of each (tests/fuzz/web_json_seeds/), half the time.
+mkdir -p "$dir/web_json_corpus"
+ASAN_OPTIONS=detect_leaks=1 "$dir/bin/web_json_fuzz" "$dir/web_json_corpus" tests/fuzz/web_json_seeds \
+  -max_total_time="$(( (seconds + 1) / 2 ))" -max_len=65536 -rss_limit_mb=2048 -timeout=20 \
+  -artifact_prefix="$dir/crashes/" -print_final_stats=1
+echo "fuzz.sh: no crash in ${seconds}s (audio) + $(( (seconds + 1) / 2 ))s (motion) + $(( (seconds + 1) / 2 ))s (web JSON)"
