@@ -73,6 +73,7 @@ absl::StatusOr<LoadReport> RunLoad(const LoadOptions& o, std::shared_ptr<const A
       po.header.mutable_sampling()->set_temperature(1.0f);
       po.header.mutable_sampling()->set_music_guidance(o.music_guidance);
     }
+    if (o.controls.ByteSizeLong() > 0) *po.header.mutable_controls() = o.controls;
     streams.push_back(std::make_unique<PerformStream>(
         stubs[static_cast<size_t>(i / o.streams_per_channel)].get(),
         std::make_unique<ClipSource>(clip, o.realtime, o.duration_s), po));

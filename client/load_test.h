@@ -20,6 +20,7 @@
 
 #include "absl/status/statusor.h"
 #include "client/audio_source.h"
+#include "dance/v1/dance.pb.h"
 
 namespace dance::client {
 
@@ -37,6 +38,7 @@ struct LoadOptions {
   float guidance = 0.0f;              // Sampling.guidance of every session (0 = the model's default)
   float music_guidance = -1.0f;       // Sampling.music_guidance of every session (negative = the model's default)
   std::vector<std::pair<std::string, float>> style;  // every session's style mix (empty = "none")
+  dance::v1::MotionControls controls;  // every session's header controls (empty = none): their live cost
 };
 
 struct LoadReport {

@@ -68,13 +68,13 @@ ABSL_FLAG(bool, quiet, false, "Less progress output.");
 ABSL_FLAG(std::string, vmc, "", "Send the dance over the VMC protocol (OSC/UDP) to HOST[:PORT] (default port 39539).");
 ABSL_FLAG(double, vmc_fps, 60.0, "VMC send rate: interpolated to this many poses/s; 0 = the stream's rate.");
 ABSL_FLAG(bool, vmc_bundle, true, "VMC: one OSC bundle per pose (false: one message per datagram).");
-ABSL_FLAG(std::string, seed_motion, "", "perform: start the dance from this clip (dance-motion/v1 JSON or BVH).");
-ABSL_FLAG(std::string, given_upper, "", "perform: the upper body exactly as in this file; the legs danced.");
-ABSL_FLAG(std::string, given_lower, "", "perform: the lower body (and root) exactly as in this file.");
-ABSL_FLAG(std::string, keyframes, "", "perform: key poses to hit (dance-motion/v1 with \"times_s\").");
-ABSL_FLAG(std::string, inpaint, "", "perform: a recorded dance to re-dance where --mask does not keep it.");
-ABSL_FLAG(std::string, mask, "", "perform: the dance-mask/v1 of --inpaint.");
-ABSL_FLAG(std::string, trajectory, "", "perform: a floor path to follow (dance-trajectory/v1).");
+ABSL_FLAG(std::string, seed_motion, "", "perform and load: start the dance from this clip (dance-motion/v1 JSON or BVH).");
+ABSL_FLAG(std::string, given_upper, "", "perform and load: the upper body exactly as in this file; the legs danced.");
+ABSL_FLAG(std::string, given_lower, "", "perform and load: the lower body (and root) exactly as in this file.");
+ABSL_FLAG(std::string, keyframes, "", "perform and load: key poses to hit (dance-motion/v1 with \"times_s\").");
+ABSL_FLAG(std::string, inpaint, "", "perform and load: a recorded dance to re-dance where --mask does not keep it.");
+ABSL_FLAG(std::string, mask, "", "perform and load: the dance-mask/v1 of --inpaint.");
+ABSL_FLAG(std::string, trajectory, "", "perform and load: a floor path to follow (dance-trajectory/v1).");
 ABSL_FLAG(std::vector<std::string>, steer, {},
           "perform: AT:T:X:Z,... once the audio reaches AT s, be at (X, Z) m at T s (Control.steer).");
 ABSL_FLAG(std::vector<std::string>, handover, {},
@@ -125,6 +125,20 @@ std::unique_ptr<dance::client::VmcStreamOut> MakeVmc(bool live = true) {
       absl::GetFlag(FLAGS_vmc), dance::client::VmcOptions{.bundle = absl::GetFlag(FLAGS_vmc_bundle)}, relay);
 }
 
+
+// The header controls the flags name (--seed-motion, --given-upper, ..., --trajectory): empty if none.
+absl::Status ControlsFromFlags(dance::v1::MotionControls* out) {
+  dance::client::ControlFiles files{absl::GetFlag(FLAGS_seed_motion), absl::GetFlag(FLAGS_given_upper),
+                                    absl::GetFlag(FLAGS_given_lower),  absl::GetFlag(FLAGS_keyframes),
+                                    absl::GetFlag(FLAGS_inpaint),      absl::GetFlag(FLAGS_mask),
+                                    absl::GetFlag(FLAGS_trajectory)};
+  if (files.empty()) return absl::OkStatus();
+  absl::StatusOr<dance::v1::MotionControls> controls = dance::client::ControlsFromFiles(files);
+  if (!controls.ok()) return controls.status();
+  *out = *std::move(controls);
+  return absl::OkStatus();
+}
+
 int Perform() {
   std::unique_ptr<dance::client::SampleSource> source;
   std::shared_ptr<const dance::client::AudioClip> clip;
@@ -163,15 +177,7 @@ int Perform() {
   }
   po.header.set_raw_feet(absl::GetFlag(FLAGS_raw_feet));
   ParseStyle(absl::GetFlag(FLAGS_style), &po.header);
-  dance::client::ControlFiles files{absl::GetFlag(FLAGS_seed_motion), absl::GetFlag(FLAGS_given_upper),
-                                    absl::GetFlag(FLAGS_given_lower),  absl::GetFlag(FLAGS_keyframes),
-                                    absl::GetFlag(FLAGS_inpaint),      absl::GetFlag(FLAGS_mask),
-                                    absl::GetFlag(FLAGS_trajectory)};
-  if (!files.empty()) {
-    auto controls = dance::client::ControlsFromFiles(files);
-    if (!controls.ok()) return Fail(controls.status());
-    *po.header.mutable_controls() = *std::move(controls);
-  }
+  if (absl::Status st = ControlsFromFlags(po.header.mutable_controls()); !st.ok()) return Fail(st);
   for (const std::string& s : absl::GetFlag(FLAGS_steer)) {
     auto t = dance::client::ParseSteerFlag(s);
     if (!t.ok()) return Fail(t.status());
@@ -363,6 +369,7 @@ int Load() {
   o.seed = absl::GetFlag(FLAGS_seed);
   o.guidance = static_cast<float>(absl::GetFlag(FLAGS_guidance));
   o.music_guidance = static_cast<float>(absl::GetFlag(FLAGS_music_guidance));
+  if (absl::Status st = ControlsFromFlags(&o.controls); !st.ok()) return Fail(st);
   dance::v1::StreamHeader styled;
   ParseStyle(absl::GetFlag(FLAGS_style), &styled);
   for (const auto& w : styled.style()) o.style.emplace_back(w.name(), w.weight());

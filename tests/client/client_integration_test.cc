@@ -73,6 +73,31 @@ TEST(ClientIntegration, LoadTestReportsEveryField) {
   EXPECT_EQ(j["slow_frames"].get<int64_t>(), r->slow_frames);
 }
 
+TEST(ClientIntegration, LoadSendsItsControlsInEveryStreamHeader) {
+  ServerHarness h;
+  LoadOptions o;
+  o.target = h.target();
+  o.streams = 2;
+  o.duration_s = 1.0;
+  o.stagger_s = 0.0;
+  o.realtime = false;
+  for (double t_ms : {0.0, 1000.0}) {
+    dance::v1::PathPoint* p = o.controls.add_trajectory();
+    p->set_t_ms(t_ms);
+    p->set_x(static_cast<float>(t_ms / 1000.0));
+  }
+  auto good = RunLoad(o, Clip(1.0, 24000), std::cerr);
+  ASSERT_TRUE(good.ok()) << good.status();
+  EXPECT_EQ(good->errors, 0) << good->first_error;
+  EXPECT_GT(good->frames, 0);
+  // A path going back in time is refused by the server: so every session did send it.
+  o.controls.mutable_trajectory(1)->set_t_ms(-5.0);
+  auto bad = RunLoad(o, Clip(1.0, 24000), std::cerr);
+  ASSERT_TRUE(bad.ok()) << bad.status();
+  EXPECT_EQ(bad->errors, 2);
+  EXPECT_TRUE(absl::StrContains(bad->first_error, "trajectory")) << bad->first_error;
+}
+
 TEST(LoadAccounting, SlowFramesSummarySaysWhenAndWhere) {
   LoadReport r;
   EXPECT_EQ(SlowFramesSummary(r), "slow frames (>= 100 ms): none");
