@@ -116,3 +116,27 @@ def test_export_and_load_give_the_same_model(tmp_path):
           torch.tensor([True]))
   with torch.no_grad():
     assert torch.allclose(m(*args), m2(*args), atol=1e-6)
+
+
+def test_v_prediction_copies_a_clean_input_and_its_loss_is_the_v_error():
+  torch.manual_seed(2)
+  m = SGMD(SGMDConfig(**{**TINY, "prediction": "v"})).eval()
+  cfg = m.cfg
+  x0 = torch.randn(2, cfg.frames, cfg.pose_dim)
+  eps = torch.randn_like(x0)
+  music = torch.randn(2, cfg.tokens, cfg.music_dim)
+  sw = torch.nn.functional.one_hot(torch.tensor([0, 2]), cfg.n_styles + 1).float()
+  keep = torch.tensor([True, True])
+  with torch.no_grad():
+    for t in (0, 500, 999):
+      tt = torch.tensor([t, t])
+      a = m.alphas_cumprod[t]
+      xt = a.sqrt() * x0 + (1 - a).sqrt() * eps
+      pred = m(xt, tt, music, sw, keep)
+      # x0_hat = sqrt(abar) x_t - sqrt(1 - abar) out: at t = 0 it is x_t up to sqrt(1 - abar_0) ~ 0.006
+      if t == 0:
+        assert torch.max(torch.abs(pred - xt)).item() < 0.1
+      v = a.sqrt() * eps - (1 - a).sqrt() * x0
+      v_hat = (a.sqrt() * xt - pred) / (1 - a).sqrt()
+      d = losses(pred, x0, torch.zeros(cfg.pose_dim), torch.ones(cfg.pose_dim), noise_std=(1 - a).sqrt().expand(2))
+      assert abs(d["diffusion"].item() - torch.mean((v_hat - v) ** 2).item()) < 1e-3 * max(1.0, d["diffusion"].item())

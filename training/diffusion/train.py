@@ -5,7 +5,8 @@
 Run directory (--run, default training/runs/sgmd/): train.log, sgmd_ckpt.pt (every --ckpt-every iterations;
 the same command resumes from it exactly: model, EMA, optimiser, batch sampler and torch random states),
 history.json and training_sgmd.png (the curves). At the end the EMA weights are exported (--out).
-The loss (the paper's eq. 7): L_d (x0 prediction, normalised units) + L_v (frame differences of it) +
+The loss (the paper's eq. 7): L_d (x0 prediction, normalised units; for a v model (--prediction v, the default)
+the v error, x0's divided by sqrt(1 - abar_t)) + L_v (frame differences of x0) +
 lambda_j L_j (world joint positions, m^2) + lambda_f L_f (squared foot displacement per frame, m^2, where the
 model predicts contact), weighted as EDGE's (the auxiliary terms stay small beside L_d). Music is dropped with --music-dropout (classifier-free
 guidance), the style with --style-dropout (the "none" row).
@@ -44,8 +45,15 @@ def world_positions(v: torch.Tensor) -> torch.Tensor:
   return rel + v[..., None, motion.ROOT]
 
 
-def losses(pred: torch.Tensor, x0: torch.Tensor, mean: torch.Tensor, std: torch.Tensor) -> dict:
-  d = {"diffusion": torch.mean((pred - x0) ** 2),
+def losses(pred: torch.Tensor, x0: torch.Tensor, mean: torch.Tensor, std: torch.Tensor,
+           noise_std: torch.Tensor | None = None) -> dict:
+  """pred, x0: (B, N, D) normalised. noise_std (B,): sqrt(1 - abar_t) of each sample for a v model, whose L_d is
+  the v error ((x0_hat - x0) / sqrt(1 - abar_t)): the x0 error alone weighs the low-noise steps by ~0, which
+  leaves v untrained there and the sampler's last steps adding noise instead of removing it."""
+  err = pred - x0
+  if noise_std is not None:
+    err = err / noise_std[:, None, None]
+  d = {"diffusion": torch.mean(err ** 2),
        "velocity": torch.mean(((pred[:, 1:] - pred[:, :-1]) - (x0[:, 1:] - x0[:, :-1])) ** 2)}
   vp, vt = pred * std + mean, x0 * std + mean
   wp, wt = world_positions(vp), world_positions(vt)
@@ -113,7 +121,7 @@ def validate(model: SGMD, val, stats_t) -> dict:
     model.eval()
     pred = model(xt, t, music, _one_hot(style, model.cfg.n_styles), torch.ones(len(t), dtype=torch.bool))
     model.train(was_training)
-    d = losses(pred, x0, *stats_t)
+    d = losses(pred, x0, *stats_t, noise_std=(1 - abar[:, 0, 0]).sqrt() if model.cfg.prediction == "v" else None)
   return {k: float(v) for k, v in d.items()}
 
 
@@ -208,7 +216,7 @@ def main(argv: list[str] | None = None) -> None:
     keep = torch.rand(b) >= args.music_dropout
     sw = _one_hot(style, cfg.n_styles, torch.rand(b) < args.style_dropout)
     pred = model(xt, t, music, sw, keep)
-    d = losses(pred, x0, *stats_t)
+    d = losses(pred, x0, *stats_t, noise_std=(1 - abar[:, 0, 0]).sqrt() if cfg.prediction == "v" else None)
     total = d["diffusion"] + d["velocity"] + args.lambda_joints * d["joints"] + args.lambda_foot * d["foot"]
     opt.zero_grad(set_to_none=True)
     total.backward()
