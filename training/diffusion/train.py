@@ -5,7 +5,7 @@
 Run directory (--run, default training/runs/sgmd/): train.log, sgmd_ckpt.pt (every --ckpt-every iterations;
 the same command resumes from it exactly: model, EMA, optimiser, batch sampler and torch random states),
 history.json and training_sgmd.png (the curves). At the end the EMA weights are exported (--out).
-The loss (the paper's eq. 7): L_d (x0 prediction, normalised units; for a v model (--prediction v, the default)
+The loss (the paper's eq. 7): L_d (x0 prediction, normalised units; for a v model (--prediction v)
 the v error, x0's divided by sqrt(1 - abar_t)) + L_v (frame differences of x0) +
 lambda_j L_j (world joint positions, m^2) + lambda_f L_f (squared foot displacement per frame, m^2, where the
 model predicts contact), weighted as EDGE's (the auxiliary terms stay small beside L_d). Music is dropped with --music-dropout (classifier-free
@@ -85,8 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
   ap.add_argument("--heads", type=int, default=4)
   ap.add_argument("--frames", type=int, default=150)
   ap.add_argument("--dropout", type=float, default=0.1)
-  ap.add_argument("--prediction", choices=("x0", "v"), default="v",
-                  help="the output's parameterisation (v: x0 = sqrt(abar) x_t - sqrt(1 - abar) out)")
+  ap.add_argument("--prediction", choices=("x0", "v"), default="x0",
+                  help="the output's parameterisation (v: x0 = sqrt(abar) x_t - sqrt(1 - abar) out; tried, "
+                       "not shipped: docs/diffusion.md section 3)")
   ap.add_argument("--no-mirror", action="store_true")
   ap.add_argument("--val-every", type=int, default=250)
   ap.add_argument("--ckpt-every", type=int, default=250)
