@@ -173,6 +173,68 @@ void BlendSeams(const Controls& controls, const std::vector<int64_t>& window_sea
 
 }  // namespace
 
+namespace sgmd_internal {
+
+// The glitch repair (SgmdDanceOptions::glitch_max_frames): returns the frames replaced.
+int64_t RepairGlitches(const Controls& controls, int max_run, std::vector<JointPositions>& world, int64_t total) {
+  constexpr int kHalf = 4;                    // the median's window: 9 frames
+  constexpr double kMaxOffset = 0.25;         // m on the floor
+  constexpr double kMaxTurn = 60.0 * M_PI / 180.0;
+  if (max_run <= 0 || total < 2 * kHalf + 1) return 0;
+  auto pelvis_given = [&](int64_t m) { return (controls.motion.KnownAt(m) & (JointMask{1} << kPelvis)) != 0; };
+  std::vector<double> yaw(static_cast<size_t>(total));
+  for (int64_t m = 0; m < total; ++m) yaw[m] = FrameOf(world[m]).yaw;
+  std::vector<char> bad(static_cast<size_t>(total), 0);
+  std::vector<double> xs, zs, ss, cs;
+  for (int64_t m = 0; m < total; ++m) {
+    if (pelvis_given(m)) continue;
+    xs.clear();
+    zs.clear();
+    ss.clear();
+    cs.clear();
+    for (int64_t k = std::max<int64_t>(0, m - kHalf); k <= std::min<int64_t>(total - 1, m + kHalf); ++k) {
+      xs.push_back(world[k][kPelvis].x());
+      zs.push_back(world[k][kPelvis].z());
+      ss.push_back(std::sin(yaw[k]));
+      cs.push_back(std::cos(yaw[k]));
+    }
+    auto median = [](std::vector<double>& v) {
+      std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+      return v[v.size() / 2];
+    };
+    const double mx = median(xs), mz = median(zs), my = std::atan2(median(ss), median(cs));
+    const double off = std::hypot(world[m][kPelvis].x() - mx, world[m][kPelvis].z() - mz);
+    const double turn = std::abs(std::remainder(yaw[m] - my, 2.0 * M_PI));
+    bad[m] = off > kMaxOffset || turn > kMaxTurn;
+  }
+  int64_t repaired = 0;
+  for (int64_t a = 0; a < total;) {
+    if (!bad[a]) {
+      ++a;
+      continue;
+    }
+    int64_t b = a;
+    while (b + 1 < total && bad[b + 1]) ++b;
+    // [a, b] is a run; good frames a - 1 and b + 1 around it (or one side at the ends of the dance).
+    if (b - a + 1 <= max_run && (a > 0 || b + 1 < total)) {
+      const int64_t lo = a - 1, hi = b + 1;
+      for (int64_t m = a; m <= b; ++m) {
+        const double w = lo < 0 ? 1.0 : hi >= total ? 0.0 : static_cast<double>(m - lo) / static_cast<double>(hi - lo);
+        const JointPositions& p = lo < 0 ? world[hi] : world[lo];
+        const JointPositions& q = hi >= total ? world[lo] : world[hi];
+        for (int j = 0; j < kNumJoints; ++j) {
+          world[m][j] = ((1.0 - w) * p[j].cast<double>() + w * q[j].cast<double>()).cast<float>();
+        }
+      }
+      repaired += b - a + 1;
+    }
+    a = b + 1;
+  }
+  return repaired;
+}
+
+}  // namespace sgmd_internal
+
 absl::StatusOr<FeatureFrames> SongFeatures(const audio::DecodedAudio& audio) {
   return audio::ComputeSongFeatures(audio);
 }
@@ -215,6 +277,9 @@ absl::StatusOr<SgmdDance> GenerateSgmdDance(const SgmdModel& model, const Featur
   if (options.steps < 0) return absl::InvalidArgumentError(absl::StrCat("steps must be >= 1, got ", options.steps));
   if (options.guidance < 0.0f) {
     return absl::InvalidArgumentError(absl::StrCat("guidance must be > 0, got ", options.guidance));
+  }
+  if (options.glitch_max_frames < 0) {
+    return absl::InvalidArgumentError(absl::StrCat("glitch repair must be >= 0 frames, got ", options.glitch_max_frames));
   }
   if (options.seam_blend_frames < 0) {
     return absl::InvalidArgumentError(absl::StrCat("seam blend must be >= 0 frames, got ", options.seam_blend_frames));
@@ -294,6 +359,7 @@ absl::StatusOr<SgmdDance> GenerateSgmdDance(const SgmdModel& model, const Featur
     done = s + n;
   }
   if (cancelled) return absl::CancelledError("the dance was cancelled");
+  out.repaired_frames = sgmd_internal::RepairGlitches(options.controls, options.glitch_max_frames, world, total);
   BlendSeams(options.controls, window_seams, options.seam_blend_frames, world, total);
 
   // Finish the frames as the token model's: bone lengths (frames without given joints), the foot lock

@@ -45,6 +45,11 @@ struct SgmdDanceOptions {
   // previous window's, or given joints), the jump against a constant-velocity continuation is faded out
   // over this many generated frames, per joint; given joints are never moved. 0 = off.
   int seam_blend_frames = 10;
+  // Glitch repair (docs/diffusion.md section 5): runs of at most this many generated frames whose pelvis
+  // leaves its neighbours' path (farther than 0.25 m from the 9-frame median of the pelvis on the floor)
+  // or whose facing turns more than 60 degrees from the median's are replaced by the interpolation of the
+  // frames around them. Frames with a given pelvis are never touched. 0 = off.
+  int glitch_max_frames = 6;
   // Called after every denoising step with (steps done, steps in all windows); return false to cancel.
   std::function<bool(int64_t, int64_t)> progress;
 };
@@ -55,6 +60,7 @@ struct SgmdDance {
   int steps = 0;
   float guidance = 1.0f;
   int overlap_frames = 0;
+  int64_t repaired_frames = 0;    // frames the glitch repair replaced
 };
 
 // The engine's causal features of a whole decoded song (as dance-features computes them).
@@ -63,6 +69,12 @@ absl::StatusOr<audio::FeatureFrames> SongFeatures(const audio::DecodedAudio& aud
 // The style weights (n_styles + 1, the last "none") of a mix; an empty mix is "none".
 absl::StatusOr<Eigen::VectorXf> SgmdStyleWeights(const SgmdModel& model,
                                                  const std::vector<std::pair<std::string, float>>& mix);
+
+namespace sgmd_internal {
+// The glitch repair of GenerateSgmdDance (SgmdDanceOptions::glitch_max_frames) on world positions of frames
+// [0, total); returns the frames it replaced. For tests.
+int64_t RepairGlitches(const Controls& controls, int max_run, std::vector<JointPositions>& world, int64_t total);
+}  // namespace sgmd_internal
 
 absl::StatusOr<SgmdDance> GenerateSgmdDance(const SgmdModel& model, const audio::FeatureFrames& song,
                                             const SgmdDanceOptions& options);

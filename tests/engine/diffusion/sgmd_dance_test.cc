@@ -92,6 +92,58 @@ TEST(SgmdDance, SeamBlendMeetsGivenFramesAndNeverMovesThem) {
   EXPECT_LE(Kink(d->frames, 23, 0), 1e-4f);
 }
 
+// A dancer walking along +X at 1 m/s, facing +Z, for `frames` frames.
+std::vector<JointPositions> Walk(int frames) {
+  std::vector<JointPositions> w(static_cast<size_t>(frames));
+  for (int m = 0; m < frames; ++m) {
+    for (int j = 0; j < kNumJoints; ++j) w[m][j] = Eigen::Vector3f(m / 30.0f, 0.9f + 0.02f * j, 0.0f);
+    // Hips and shoulders across X, so the body faces along Z; the hands ahead of it.
+    w[m][1].x() += 0.1f;
+    w[m][2].x() -= 0.1f;
+    w[m][16].x() += 0.2f;
+    w[m][17].x() -= 0.2f;
+    w[m][22].z() += 0.3f;
+    w[m][23].z() += 0.3f;
+  }
+  return w;
+}
+
+TEST(SgmdDance, GlitchRepairReplacesShortJumpsAwayAndKeepsGivenAndLongOnes) {
+  std::vector<JointPositions> w = Walk(60);
+  const std::vector<JointPositions> clean = w;
+  auto teleport = [&](int from, int to) {  // frames [from, to) jump 3 m aside
+    for (int m = from; m < to; ++m) {
+      for (Eigen::Vector3f& q : w[m]) q += Eigen::Vector3f(0.0f, 0.0f, 3.0f);
+    }
+  };
+  teleport(10, 12);   // 2 frames: a glitch
+  for (int m = 30; m < 32; ++m) {  // 2 frames turned about the pelvis by 180 degrees: a glitch
+    for (Eigen::Vector3f& q : w[m]) q = Eigen::Vector3f(2.0f * w[m][0].x() - q.x(), q.y(), -q.z());
+  }
+  teleport(40, 52);   // 12 frames: longer than 6, a move of its own, kept
+  Controls none;
+  EXPECT_EQ(sgmd_internal::RepairGlitches(none, 6, w, 60), 4);
+  for (int m : {9, 10, 11, 12, 29, 30, 31, 32}) {
+    for (int j = 0; j < kNumJoints; ++j) {
+      ASSERT_LE((w[m][j] - clean[m][j]).norm(), 1e-4f) << "frame " << m << " joint " << j;  // the walk, interpolated
+    }
+  }
+  EXPECT_NEAR(w[45][0].z(), 3.0f, 1e-5f);
+  // A given pelvis is never touched, glitch or not.
+  std::vector<JointPositions> g = clean;
+  for (int m = 20; m < 22; ++m) {
+    for (Eigen::Vector3f& q : g[m]) q += Eigen::Vector3f(0.0f, 0.0f, 3.0f);
+  }
+  Controls given;
+  given.motion = SeedTrack(std::vector<JointPositions>(g.begin() + 20, g.begin() + 22), 20);
+  EXPECT_EQ(sgmd_internal::RepairGlitches(given, 6, g, 60), 0);
+  EXPECT_NEAR(g[20][0].z(), 3.0f, 1e-5f);
+  // 0 = off.
+  std::vector<JointPositions> off = clean;
+  for (Eigen::Vector3f& q : off[30]) q += Eigen::Vector3f(0.0f, 0.0f, 3.0f);
+  EXPECT_EQ(sgmd_internal::RepairGlitches(none, 0, off, 60), 0);
+}
+
 TEST(SgmdDance, NegativeSeamBlendIsRefused) {
   std::shared_ptr<const SgmdModel> model = Tiny();
   ASSERT_NE(model, nullptr);
