@@ -4,6 +4,7 @@
 #include <cmath>
 #include <random>
 
+#include "Eigen/Geometry"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "engine/diffusion/ddim.h"
@@ -177,7 +178,7 @@ namespace sgmd_internal {
 
 // The glitch repair (SgmdDanceOptions::glitch_max_frames): returns the frames replaced.
 int64_t RepairGlitches(const Controls& controls, int max_run, std::vector<JointPositions>& world, int64_t total) {
-  constexpr int kHalf = 4;                    // the median's window: 9 frames
+  constexpr int kHalf = 8;                    // the median's window: 17 frames
   constexpr double kMaxOffset = 0.25;         // m on the floor
   constexpr double kMaxTurn = 60.0 * M_PI / 180.0;
   if (max_run <= 0 || total < 2 * kHalf + 1) return 0;
@@ -233,6 +234,54 @@ int64_t RepairGlitches(const Controls& controls, int max_run, std::vector<JointP
   return repaired;
 }
 
+int ReanchorSeams(const Controls& controls, const std::vector<int64_t>& window_seams, int search,
+                  std::vector<JointPositions>& world, int64_t total) {
+  constexpr double kMinBreak = 0.08;  // m (+ 0.5 m per radian of facing): smaller ones are the blend's
+  if (search <= 0) return 0;
+  auto pelvis_given = [&](int64_t m) { return (controls.motion.KnownAt(m) & (JointMask{1} << kPelvis)) != 0; };
+  auto on_path = [&](int64_t m) {
+    return !controls.trajectory.empty() && m / 30.0 >= controls.trajectory.front().t_s &&
+           m / 30.0 <= controls.trajectory.back().t_s;
+  };
+  auto yaw = [&](int64_t m) { return FrameOf(world[m]).yaw; };
+  auto floor = [&](int64_t m) { return Eigen::Vector3f(world[m][kPelvis].x(), 0.0f, world[m][kPelvis].z()); };
+  int moved = 0;
+  for (int64_t seam : window_seams) {
+    if (seam < 2) continue;
+    double worst = 0.0, turn = 0.0;
+    int64_t at = -1;
+    Eigen::Vector3f target = Eigen::Vector3f::Zero();
+    if (pelvis_given(seam - 1) || pelvis_given(seam - 2)) continue;
+    // The continuation of the two frames before the seam, k frames on.
+    const double yaw_step = std::remainder(yaw(seam - 1) - yaw(seam - 2), 2.0 * M_PI);
+    const Eigen::Vector3f step = floor(seam - 1) - floor(seam - 2);
+    for (int64_t i = seam; i < std::min(total, seam + search); ++i) {
+      if (pelvis_given(i) || on_path(i)) break;
+      const double k = static_cast<double>(i - seam + 1);
+      const double yaw_next = yaw(seam - 1) + k * yaw_step;
+      const Eigen::Vector3f next = floor(seam - 1) + static_cast<float>(k) * step;
+      const double d_yaw = std::remainder(yaw_next - yaw(i), 2.0 * M_PI);
+      const double e = (floor(i) - next).norm() + 0.5 * std::abs(d_yaw);
+      if (e > worst) {
+        worst = e;
+        at = i;
+        turn = d_yaw;
+        target = next;
+      }
+    }
+    if (at < 0 || worst <= kMinBreak) continue;
+    // The rest of the dance (up to a given pelvis or the path) turns about frame `at`'s pelvis and moves
+    // it onto the continuation; later windows were made from these frames, so they move with them.
+    const Eigen::Matrix3f r = Eigen::AngleAxisf(static_cast<float>(turn), Eigen::Vector3f::UnitY()).toRotationMatrix();
+    const Eigen::Vector3f pivot = floor(at);
+    for (int64_t m = at; m < total && !pelvis_given(m) && !on_path(m); ++m) {
+      for (Eigen::Vector3f& q : world[m]) q = r * (q - pivot) + target;
+    }
+    ++moved;
+  }
+  return moved;
+}
+
 }  // namespace sgmd_internal
 
 absl::StatusOr<FeatureFrames> SongFeatures(const audio::DecodedAudio& audio) {
@@ -277,6 +326,10 @@ absl::StatusOr<SgmdDance> GenerateSgmdDance(const SgmdModel& model, const Featur
   if (options.steps < 0) return absl::InvalidArgumentError(absl::StrCat("steps must be >= 1, got ", options.steps));
   if (options.guidance < 0.0f) {
     return absl::InvalidArgumentError(absl::StrCat("guidance must be > 0, got ", options.guidance));
+  }
+  if (options.reanchor_search_frames < 0) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("re-anchoring must search >= 0 frames, got ", options.reanchor_search_frames));
   }
   if (options.glitch_max_frames < 0) {
     return absl::InvalidArgumentError(absl::StrCat("glitch repair must be >= 0 frames, got ", options.glitch_max_frames));
@@ -359,6 +412,9 @@ absl::StatusOr<SgmdDance> GenerateSgmdDance(const SgmdModel& model, const Featur
     done = s + n;
   }
   if (cancelled) return absl::CancelledError("the dance was cancelled");
+  // Before the glitch repair: that smears a break it takes for a glitch over the frames around it.
+  out.reanchored_seams =
+      sgmd_internal::ReanchorSeams(options.controls, window_seams, options.reanchor_search_frames, world, total);
   out.repaired_frames = sgmd_internal::RepairGlitches(options.controls, options.glitch_max_frames, world, total);
   BlendSeams(options.controls, window_seams, options.seam_blend_frames, world, total);
 

@@ -46,10 +46,15 @@ struct SgmdDanceOptions {
   // over this many generated frames, per joint; given joints are never moved. 0 = off.
   int seam_blend_frames = 10;
   // Glitch repair (docs/diffusion.md section 5): runs of at most this many generated frames whose pelvis
-  // leaves its neighbours' path (farther than 0.25 m from the 9-frame median of the pelvis on the floor)
+  // leaves its neighbours' path (farther than 0.25 m from the 17-frame median of the pelvis on the floor)
   // or whose facing turns more than 60 degrees from the median's are replaced by the interpolation of the
   // frames around them. Frames with a given pelvis are never touched. 0 = off.
-  int glitch_max_frames = 6;
+  int glitch_max_frames = 8;
+  // Re-anchoring (docs/diffusion.md section 5): after each window seam, the worst break of the pelvis path
+  // or facing among this many new frames (against the constant-velocity, constant-turn continuation of
+  // the two frames before it), if over 8 cm (+ 0.5 m per radian), is removed by turning and moving the rest
+  // of the dance as one piece, up to a frame with a given pelvis or the trajectory's span. 0 = off.
+  int reanchor_search_frames = 8;
   // Called after every denoising step with (steps done, steps in all windows); return false to cancel.
   std::function<bool(int64_t, int64_t)> progress;
 };
@@ -61,6 +66,7 @@ struct SgmdDance {
   float guidance = 1.0f;
   int overlap_frames = 0;
   int64_t repaired_frames = 0;    // frames the glitch repair replaced
+  int reanchored_seams = 0;       // window seams whose break the re-anchoring removed
 };
 
 // The engine's causal features of a whole decoded song (as dance-features computes them).
@@ -74,6 +80,10 @@ namespace sgmd_internal {
 // The glitch repair of GenerateSgmdDance (SgmdDanceOptions::glitch_max_frames) on world positions of frames
 // [0, total); returns the frames it replaced. For tests.
 int64_t RepairGlitches(const Controls& controls, int max_run, std::vector<JointPositions>& world, int64_t total);
+// The re-anchoring (SgmdDanceOptions::reanchor_search_frames) at the given window seams (each window's
+// first new frame); returns the seams it moved the dance at.
+int ReanchorSeams(const Controls& controls, const std::vector<int64_t>& window_seams, int search,
+                  std::vector<JointPositions>& world, int64_t total);
 }  // namespace sgmd_internal
 
 absl::StatusOr<SgmdDance> GenerateSgmdDance(const SgmdModel& model, const audio::FeatureFrames& song,

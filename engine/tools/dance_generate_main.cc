@@ -296,6 +296,7 @@ absl::Status RunDiffusion(const Flags& flags) {
                 {"overlap_s", dance->overlap_frames / 30.0},
                 {"windows", dance->windows},
                 {"repaired_frames", dance->repaired_frames},
+                {"reanchored_seams", dance->reanchored_seams},
                 {"foot_lock", options.foot_lock},
                 {"audio_file", flags.audio},
                 {"audio_duration_s", duration},
@@ -312,7 +313,8 @@ absl::Status RunDiffusion(const Flags& flags) {
     if (absl::Status st = dance::client::WriteMotionFile(p, ClipOf(skeleton, frames)); !st.ok()) return st;
   }
   if (!flags.quiet) {
-    nlohmann::json summary = {{"frames", frames.size()}, {"windows", dance->windows}, {"repaired_frames", dance->repaired_frames}, {"steps", dance->steps},
+    nlohmann::json summary = {{"frames", frames.size()}, {"windows", dance->windows}, {"repaired_frames", dance->repaired_frames},
+                              {"reanchored_seams", dance->reanchored_seams}, {"steps", dance->steps},
                               {"audio_s", duration}, {"wall_s", wall_s},
                               {"x_real_time", wall_s > 0 ? duration / wall_s : 0.0},
                               {"model_id", (*model)->model_id()}, {"backend", "diffusion"}, {"out", flags.out}};
