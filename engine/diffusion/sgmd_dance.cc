@@ -182,7 +182,8 @@ int64_t RepairGlitches(const Controls& controls, int max_run, std::vector<JointP
   constexpr double kMaxOffset = 0.25;         // m on the floor
   constexpr double kMaxTurn = 60.0 * M_PI / 180.0;
   if (max_run <= 0 || total < 2 * kHalf + 1) return 0;
-  auto pelvis_given = [&](int64_t m) { return (controls.motion.KnownAt(m) & (JointMask{1} << kPelvis)) != 0; };
+  // A frame with any given joint is never touched (moving its pelvis would move the given joints with it).
+  auto pelvis_given = [&](int64_t m) { return controls.motion.KnownAt(m) != 0; };
   std::vector<double> yaw(static_cast<size_t>(total));
   for (int64_t m = 0; m < total; ++m) yaw[m] = FrameOf(world[m]).yaw;
   std::vector<char> bad(static_cast<size_t>(total), 0);
@@ -238,7 +239,9 @@ int ReanchorSeams(const Controls& controls, const std::vector<int64_t>& window_s
                   std::vector<JointPositions>& world, int64_t total) {
   constexpr double kMinBreak = 0.08;  // m (+ 0.5 m per radian of facing): smaller ones are the blend's
   if (search <= 0) return 0;
-  auto pelvis_given = [&](int64_t m) { return (controls.motion.KnownAt(m) & (JointMask{1} << kPelvis)) != 0; };
+  // Frames with any given joint stay where they are (and so do the frames the re-anchoring would move
+  // past them).
+  auto pelvis_given = [&](int64_t m) { return controls.motion.KnownAt(m) != 0; };
   auto on_path = [&](int64_t m) {
     return !controls.trajectory.empty() && m / 30.0 >= controls.trajectory.front().t_s &&
            m / 30.0 <= controls.trajectory.back().t_s;

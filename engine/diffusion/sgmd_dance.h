@@ -48,12 +48,12 @@ struct SgmdDanceOptions {
   // Glitch repair (docs/diffusion.md section 5): runs of at most this many generated frames whose pelvis
   // leaves its neighbours' path (farther than 0.25 m from the 17-frame median of the pelvis on the floor)
   // or whose facing turns more than 60 degrees from the median's are replaced by the interpolation of the
-  // frames around them. Frames with a given pelvis are never touched. 0 = off.
+  // frames around them. Frames with any given joint are never touched. 0 = off.
   int glitch_max_frames = 8;
   // Re-anchoring (docs/diffusion.md section 5): after each window seam, the worst break of the pelvis path
   // or facing among this many new frames (against the constant-velocity, constant-turn continuation of
   // the two frames before it), if over 8 cm (+ 0.5 m per radian), is removed by turning and moving the rest
-  // of the dance as one piece, up to a frame with a given pelvis or the trajectory's span. 0 = off.
+  // of the dance as one piece, up to a frame with any given joint or the trajectory's span. 0 = off.
   int reanchor_search_frames = 8;
   // Called after every denoising step with (steps done, steps in all windows); return false to cancel.
   std::function<bool(int64_t, int64_t)> progress;
