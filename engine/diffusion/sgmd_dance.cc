@@ -61,7 +61,7 @@ Eigen::MatrixXf WindowMusic(const SgmdModel& model, const FeatureFrames& song, i
 // The window's canonical frame when nothing before it is known: the first frame's given pelvis and facing,
 // else the path's point there (facing +Z), else the world's.
 CanonicalFrame FirstFrame(const Controls& controls, int64_t m) {
-  if (controls.motion.KnownAt(m) & (JointMask{1} << kPelvis)) {
+  if (controls.motion.KnownAt(m) != 0) {
     return FrameOf(controls.motion.positions[m - controls.motion.first_frame]);
   }
   CanonicalFrame f;
@@ -84,7 +84,9 @@ void ControlKnown(const Controls& controls, const CanonicalFrame& frame, int64_t
     if (known != 0) {
       const JointPositions local = ToFrame(controls.motion.positions[m - controls.motion.first_frame], frame);
       const Eigen::VectorXf v = PoseVector(local);
-      if (known & (JointMask{1} << kPelvis)) {
+      // Any given joint gives the pelvis and facing too: local dims are relative to the pelvis, so given
+      // joints are exact in the world only on the given pose's pelvis (a given upper body carries its root).
+      {
         values.col(i).segment(kMotionRoot, 5) = v.segment(kMotionRoot, 5);
         mask.col(i).segment(kMotionRoot, 5).setOnes();
       }
@@ -95,7 +97,7 @@ void ControlKnown(const Controls& controls, const CanonicalFrame& frame, int64_t
         mask.col(i).segment(d, 3).setOnes();
       }
     }
-    if (controls.trajectory.empty() || (known & (JointMask{1} << kPelvis))) continue;
+    if (controls.trajectory.empty() || known != 0) continue;
     double x = 0.0, z = 0.0;
     if (PathAt(controls.trajectory, m / 30.0, &x, &z)) {
       // p' = R_y(-yaw) (p - o); R_y(a) = [[c, 0, s], [0, 1, 0], [-s, 0, c]]
@@ -111,7 +113,7 @@ void ControlKnown(const Controls& controls, const CanonicalFrame& frame, int64_t
     if (!p.facing) continue;
     const int64_t i = static_cast<int64_t>(std::llround(p.t_s * 30.0)) - start;
     if (i < from || i >= n_frames) continue;
-    if (controls.motion.KnownAt(start + i) & (JointMask{1} << kPelvis)) continue;
+    if (controls.motion.KnownAt(start + i) != 0) continue;
     const double a = *p.facing - frame.yaw;
     values(kMotionHeading + 0, i) = static_cast<float>(std::sin(a));
     values(kMotionHeading + 1, i) = static_cast<float>(std::cos(a));
