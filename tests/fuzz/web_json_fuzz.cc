@@ -9,6 +9,8 @@
 #include <cstdint>
 #include <cstdlib>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "nlohmann/json.hpp"
 #include "server/core/edit_jobs.h"
@@ -19,31 +21,26 @@ namespace {
 
 using namespace dance::server;  // NOLINT: a fuzz target
 
+// A description (ModelDescription or EditorDescription) with a 24-joint skeleton and these styles.
+template <typename Description>
+const Description* Describe(const char* id, std::vector<std::string> styles) {
+  auto* d = new Description;
+  d->model_id = id;
+  d->styles = std::move(styles);
+  d->joint_names.assign(24, "j");
+  d->parents.assign(24, 0);
+  d->parents[0] = -1;
+  d->rest_offsets.assign(72, 0.1f);
+  return d;
+}
+
 const ModelDescription& Model() {
-  static const ModelDescription* m = [] {
-    auto* d = new ModelDescription;
-    d->model_id = "fuzz";
-    d->styles = {"breaking", "cha-cha", "waltz"};
-    d->joint_names.assign(24, "j");
-    d->parents.assign(24, 0);
-    d->parents[0] = -1;
-    d->rest_offsets.assign(72, 0.1f);
-    return d;
-  }();
+  static const ModelDescription* m = Describe<ModelDescription>("fuzz", {"breaking", "cha-cha", "waltz"});
   return *m;
 }
 
 const EditorDescription& Editor() {
-  static const EditorDescription* e = [] {
-    auto* d = new EditorDescription;
-    d->model_id = "fuzz-editor";
-    d->styles = {"breaking", "waltz"};
-    d->joint_names.assign(24, "j");
-    d->parents.assign(24, 0);
-    d->parents[0] = -1;
-    d->rest_offsets.assign(72, 0.1f);
-    return d;
-  }();
+  static const EditorDescription* e = Describe<EditorDescription>("fuzz-editor", {"breaking", "waltz"});
   return *e;
 }
 
