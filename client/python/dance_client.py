@@ -158,7 +158,7 @@ def main():
     channel = grpc.insecure_channel(args.server, options=[("grpc.max_receive_message_length", 16 << 20)])
     stub = dance_pb2_grpc.DanceServiceStub(channel)
     metadata = [("authorization", "Bearer " + args.token)] if args.token else None
-    info, frames, end = None, [], None
+    info, frames, end, beats = None, [], None, []
     try:
         for update in stub.Perform(requests(pcm, rate, channels, args), metadata=metadata):
             kind = update.WhichOneof("kind")
@@ -167,6 +167,8 @@ def main():
                 print(f"session {info.session_id} model {info.model_id} latency {info.latency_ms:.1f} ms")
             elif kind == "frame":
                 frames.append(update.frame)
+            elif kind == "event" and update.event.kind == dance_pb2.Event.KIND_BEAT:
+                beats.append(round(update.event.time_ms) / 1000.0)  # the server's beats, for the file
             elif kind == "event" and update.event.kind == dance_pb2.Event.KIND_WARNING:
                 print(f"dance_client.py: server warning at {update.event.time_ms / 1000.0:.2f} s: "
                       f"{update.event.message}", file=sys.stderr)
@@ -186,6 +188,8 @@ def main():
         "codes": {"upper": [f.upper_code for f in frames], "lower": [f.lower_code for f in frames]},
         "model_id": info.model_id, "session_id": info.session_id, "seed": args.seed,
     }
+    if beats:
+        dance["beat_times_s"] = beats
     with open(args.out, "w") as fh:
         json.dump(dance, fh)
     print(f"{len(frames)} frames ({end.audio_ms / 1000.0:.1f} s of audio) -> {args.out}")

@@ -45,7 +45,7 @@ def main():
                 w.setsampwidth(2)
                 w.setframerate(rate)
                 samples = [0.3 * math.sin(2 * math.pi * 110 * i / rate) + (0.6 if i % 8000 < 200 else 0.0)
-                           for i in range(3 * rate)]
+                           for i in range(5 * rate)]
                 w.writeframes(b"".join(struct.pack("<h", int(max(-1, min(1, s)) * 32000)) for s in samples))
             out = os.path.join(tmp, "dance.json")
             r = subprocess.run([sys.executable, os.path.join(src, "client", "python", "dance_client.py"),
@@ -57,9 +57,14 @@ def main():
             d = json.load(open(out))
             assert d["format"] == "dance-motion/v1", d["format"]
             assert len(d["joint_names"]) == 24
-            assert len(d["positions"]) >= 80, len(d["positions"])  # 3 s at 30 fps, minus the first period
+            assert len(d["positions"]) >= 140, len(d["positions"])  # 5 s at 30 fps, minus the first period
             assert all(len(p) == 24 and len(p[0]) == 3 for p in d["positions"])
             assert len(d["rotations"]) == len(d["positions"])
+            # The server's beats (KIND_BEAT) land in the file: clicks every 0.5 s.
+            beats = d.get("beat_times_s", [])
+            assert len(beats) >= 3, beats
+            gaps = sorted(b - a for a, b in zip(beats, beats[1:]))
+            assert abs(gaps[len(gaps) // 2] - 0.5) < 0.05, beats
             n_free = len(d["positions"])
             # Controls from Python: a floor path in the header and a steer mid-stream are accepted ...
             path = os.path.join(tmp, "path.json")
