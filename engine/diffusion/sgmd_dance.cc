@@ -185,13 +185,13 @@ int64_t RepairGlitches(const Controls& controls, int max_run, std::vector<JointP
   constexpr double kMaxTurn = 60.0 * M_PI / 180.0;
   if (max_run <= 0 || total < 2 * kHalf + 1) return 0;
   // A frame with any given joint is never touched (moving its pelvis would move the given joints with it).
-  auto pelvis_given = [&](int64_t m) { return controls.motion.KnownAt(m) != 0; };
+  auto any_given = [&](int64_t m) { return controls.motion.KnownAt(m) != 0; };
   std::vector<double> yaw(static_cast<size_t>(total));
   for (int64_t m = 0; m < total; ++m) yaw[m] = FrameOf(world[m]).yaw;
   std::vector<char> bad(static_cast<size_t>(total), 0);
   std::vector<double> xs, zs, ss, cs;
   for (int64_t m = 0; m < total; ++m) {
-    if (pelvis_given(m)) continue;
+    if (any_given(m)) continue;
     xs.clear();
     zs.clear();
     ss.clear();
@@ -243,7 +243,7 @@ int ReanchorSeams(const Controls& controls, const std::vector<int64_t>& window_s
   if (search <= 0) return 0;
   // Frames with any given joint stay where they are (and so do the frames the re-anchoring would move
   // past them).
-  auto pelvis_given = [&](int64_t m) { return controls.motion.KnownAt(m) != 0; };
+  auto any_given = [&](int64_t m) { return controls.motion.KnownAt(m) != 0; };
   auto on_path = [&](int64_t m) {
     return !controls.trajectory.empty() && m / 30.0 >= controls.trajectory.front().t_s &&
            m / 30.0 <= controls.trajectory.back().t_s;
@@ -256,12 +256,12 @@ int ReanchorSeams(const Controls& controls, const std::vector<int64_t>& window_s
     double worst = 0.0, turn = 0.0;
     int64_t at = -1;
     Eigen::Vector3f target = Eigen::Vector3f::Zero();
-    if (pelvis_given(seam - 1) || pelvis_given(seam - 2)) continue;
+    if (any_given(seam - 1) || any_given(seam - 2)) continue;
     // The continuation of the two frames before the seam, k frames on.
     const double yaw_step = std::remainder(yaw(seam - 1) - yaw(seam - 2), 2.0 * M_PI);
     const Eigen::Vector3f step = floor(seam - 1) - floor(seam - 2);
     for (int64_t i = seam; i < std::min(total, seam + search); ++i) {
-      if (pelvis_given(i) || on_path(i)) break;
+      if (any_given(i) || on_path(i)) break;
       const double k = static_cast<double>(i - seam + 1);
       const double yaw_next = yaw(seam - 1) + k * yaw_step;
       const Eigen::Vector3f next = floor(seam - 1) + static_cast<float>(k) * step;
@@ -275,11 +275,11 @@ int ReanchorSeams(const Controls& controls, const std::vector<int64_t>& window_s
       }
     }
     if (at < 0 || worst <= kMinBreak) continue;
-    // The rest of the dance (up to a given pelvis or the path) turns about frame `at`'s pelvis and moves
+    // The rest of the dance (up to a frame with a given joint, or the path) turns about frame `at`'s pelvis and moves
     // it onto the continuation; later windows were made from these frames, so they move with them.
     const Eigen::Matrix3f r = Eigen::AngleAxisf(static_cast<float>(turn), Eigen::Vector3f::UnitY()).toRotationMatrix();
     const Eigen::Vector3f pivot = floor(at);
-    for (int64_t m = at; m < total && !pelvis_given(m) && !on_path(m); ++m) {
+    for (int64_t m = at; m < total && !any_given(m) && !on_path(m); ++m) {
       for (Eigen::Vector3f& q : world[m]) q = r * (q - pivot) + target;
     }
     ++moved;
