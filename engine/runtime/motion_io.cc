@@ -240,7 +240,7 @@ absl::StatusOr<MotionFile> ParseBvh(const std::string& text) {
         if (!(in >> v) || !std::isfinite(v)) {
           return absl::InvalidArgumentError(absl::StrCat("BVH: frame ", f, " has too few or bad values"));
         }
-        if (c.size() == 9 && c.substr(1) == "position") {
+        if (c.size() == 9 && c.substr(1) == "position" && (c[0] == 'X' || c[0] == 'Y' || c[0] == 'Z')) {
           translation[c[0] - 'X'] = v;
         } else if (c.size() == 9 && c.substr(1) == "rotation" && (c[0] == 'X' || c[0] == 'Y' || c[0] == 'Z')) {
           local = local * ChannelRotation(c[0], v);

@@ -363,6 +363,16 @@ TEST(Controls, MotionFilesReadBackWhatTheWritersWrote) {
   absl::StatusOr<MotionFile> other = ParseBvh("HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 3 Xposition Yposition Zposition\n}\nMOTION\nFrames: 1\nFrame Time: 0.033\n0 0 0\n");
   ASSERT_FALSE(other.ok());
   EXPECT_TRUE(absl::StrContains(other.status().message(), "missing joints: pelvis")) << other.status();
+  // A position channel on an axis that does not exist is refused (found by motion_fuzz in a 10 M-run:
+  // "Wposition" indexed the translation out of bounds).
+  std::ifstream bvh_in(bvh);
+  std::string text((std::istreambuf_iterator<char>(bvh_in)), std::istreambuf_iterator<char>());
+  const size_t x = text.find("Xposition");
+  ASSERT_NE(x, std::string::npos);
+  text[x] = 'W';
+  absl::StatusOr<MotionFile> bad_axis = ParseBvh(text);
+  ASSERT_FALSE(bad_axis.ok());
+  EXPECT_TRUE(absl::StrContains(bad_axis.status().message(), "unknown channel 'Wposition'")) << bad_axis.status();
   std::filesystem::remove(json);
   std::filesystem::remove(bvh);
   // Fields of the wrong type are errors, not exceptions (found by motion_fuzz: "format" as a list).
