@@ -125,7 +125,6 @@ std::unique_ptr<dance::client::VmcStreamOut> MakeVmc(bool live = true) {
       absl::GetFlag(FLAGS_vmc), dance::client::VmcOptions{.bundle = absl::GetFlag(FLAGS_vmc_bundle)}, relay);
 }
 
-
 // The header controls the flags name (--seed-motion, --given-upper, ..., --trajectory): empty if none.
 absl::Status ControlsFromFlags(dance::v1::MotionControls* out) {
   dance::client::ControlFiles files{absl::GetFlag(FLAGS_seed_motion), absl::GetFlag(FLAGS_given_upper),

@@ -86,10 +86,8 @@ void ControlKnown(const Controls& controls, const CanonicalFrame& frame, int64_t
       const Eigen::VectorXf v = PoseVector(local);
       // Any given joint gives the pelvis and facing too: local dims are relative to the pelvis, so given
       // joints are exact in the world only on the given pose's pelvis (a given upper body carries its root).
-      {
-        values.col(i).segment(kMotionRoot, 5) = v.segment(kMotionRoot, 5);
-        mask.col(i).segment(kMotionRoot, 5).setOnes();
-      }
+      values.col(i).segment(kMotionRoot, 5) = v.segment(kMotionRoot, 5);
+      mask.col(i).segment(kMotionRoot, 5).setOnes();
       for (int j = 1; j < kNumJoints; ++j) {
         if (!(known & (JointMask{1} << j))) continue;
         const int d = kMotionLocal + 3 * (j - 1);

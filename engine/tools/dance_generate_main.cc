@@ -82,7 +82,6 @@ constexpr char kUsage[] =
     "                      [--gltf DANCE.glb|.gltf] [--vrma DANCE.vrma]\n"
     "                      [--backend tokens|diffusion] [--steps N] [--overlap-s S]\n";
 
-// The frames as plain arrays for the glTF / VRMA writers.
 // The engine's beats within the song, rounded to the ms, for the file's "beat_times_s".
 std::vector<double> BeatTimes(const std::vector<double>& beats, double duration_s) {
   std::vector<double> out;
@@ -92,6 +91,7 @@ std::vector<double> BeatTimes(const std::vector<double>& beats, double duration_
   return out;
 }
 
+// The frames as plain arrays for the glTF / VRMA writers.
 dance::client::MotionClip ClipOf(const Skeleton& skeleton, const std::vector<PoseFrame>& frames) {
   dance::client::MotionClip clip;
   clip.joint_names = skeleton.joint_names;

@@ -49,13 +49,20 @@ TEST(ClientIntegration, FastPerformGetsTheEngineDance) {
   EXPECT_EQ(s.end().frames(), static_cast<int64_t>(ref.size()));
 }
 
+// Load options for `streams` sessions of `duration_s` against `target`, started over `stagger_s`.
+LoadOptions Load(const std::string& target, int streams, double duration_s, double stagger_s, bool realtime) {
+  LoadOptions o;
+  o.target = target;
+  o.streams = streams;
+  o.duration_s = duration_s;
+  o.stagger_s = stagger_s;
+  o.realtime = realtime;
+  return o;
+}
+
 TEST(ClientIntegration, LoadTestReportsEveryField) {
   ServerHarness h;
-  LoadOptions o;
-  o.target = h.target();
-  o.streams = 4;
-  o.duration_s = 1.5;
-  o.stagger_s = 0.2;
+  LoadOptions o = Load(h.target(), 4, 1.5, 0.2, /*realtime=*/true);
   auto r = RunLoad(o, Clip(1.0, 24000), std::cerr);  // the 1 s clip loops to 1.5 s
   ASSERT_TRUE(r.ok()) << r.status();
   EXPECT_EQ(r->errors, 0) << r->first_error;
@@ -75,12 +82,7 @@ TEST(ClientIntegration, LoadTestReportsEveryField) {
 
 TEST(ClientIntegration, LoadSendsItsControlsInEveryStreamHeader) {
   ServerHarness h;
-  LoadOptions o;
-  o.target = h.target();
-  o.streams = 2;
-  o.duration_s = 1.0;
-  o.stagger_s = 0.0;
-  o.realtime = false;
+  LoadOptions o = Load(h.target(), 2, 1.0, 0.0, /*realtime=*/false);
   for (double t_ms : {0.0, 1000.0}) {
     dance::v1::PathPoint* p = o.controls.add_trajectory();
     p->set_t_ms(t_ms);
@@ -177,12 +179,8 @@ TEST(ClientIntegration, LoadTestCountsFramesOfFailedSessionsAsDropped) {
   std::unique_ptr<grpc::Server> server = b.BuildAndStart();
   ASSERT_NE(server, nullptr);
   ASSERT_GT(port, 0);
-  LoadOptions o;
-  o.target = absl::StrCat("127.0.0.1:", port);
-  o.streams = 3;
-  o.duration_s = 1.5;
-  o.stagger_s = 0.0;
-  o.realtime = false;  // all audio is sent: the expectation is exact
+  // All audio is sent (not real time): the expectation is exact.
+  LoadOptions o = Load(absl::StrCat("127.0.0.1:", port), 3, 1.5, 0.0, /*realtime=*/false);
   auto r = RunLoad(o, Clip(1.5, 24000), std::cerr);
   server->Shutdown();
   ASSERT_TRUE(r.ok()) << r.status();

@@ -25,7 +25,7 @@ from training.data.skeleton import load_skeleton
 from training.model.sgmd import SGMD, SGMDConfig
 
 TINY = dict(d_model=32, n_heads=2, n_layers=2, n_music_layers=1, frames=8, frames_per_token=2, style_dim=8,
-            n_styles=len(STYLES), dropout=0.0, prediction="v")  # v as the shipped model
+            n_styles=len(STYLES), dropout=0.0, prediction="v")  # the engine's v form checked against PyTorch (the shipped model is x0)
 
 
 def make_tiny(path: pathlib.Path) -> None:
